@@ -1,0 +1,113 @@
+//! Small file helpers shared by every crate: atomic writes (temporary file, then rename) so a
+//! failed run never leaves a half-written output, and error values that name the file.
+//!
+//! Owns: `FileError`, `write_atomic`. Must not touch: any format knowledge.
+
+use std::fmt;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// An error tied to one file: says which file and what is wrong with it.
+#[derive(Debug, Clone)]
+pub struct FileError {
+    pub path: PathBuf,
+    pub msg: String,
+}
+
+impl FileError {
+    pub fn new(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        Self {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.into(),
+        }
+    }
+}
+
+impl fmt::Display for FileError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.msg)
+    }
+}
+
+impl std::error::Error for FileError {}
+
+pub type Result<T> = std::result::Result<T, FileError>;
+
+/// Reads a whole file, naming it in the error.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| FileError::new(path, io_msg(&e)))
+}
+
+/// Reads a whole UTF-8 text file, naming it in the error.
+pub fn read_text(path: &Path) -> Result<String> {
+    let bytes = read_bytes(path)?;
+    String::from_utf8(bytes).map_err(|_| FileError::new(path, "not valid UTF-8 text"))
+}
+
+fn io_msg(e: &std::io::Error) -> String {
+    match e.kind() {
+        std::io::ErrorKind::NotFound => "file not found".to_string(),
+        _ => e.to_string(),
+    }
+}
+
+/// Writes `path` atomically: `write` fills a temporary file beside it, which is renamed over
+/// `path` only when everything succeeded. Parent folders are created.
+pub fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&Path) -> std::result::Result<(), String>,
+) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| FileError::new(dir, e.to_string()))?;
+    }
+    let tmp = tmp_path(path);
+    let res = write(&tmp);
+    if let Err(msg) = res {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(FileError::new(path, msg));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        FileError::new(path, e.to_string())
+    })
+}
+
+/// Writes bytes atomically.
+pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomic(path, |tmp| {
+        let mut f = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
+        f.write_all(bytes).map_err(|e| e.to_string())?;
+        f.sync_all().map_err(|e| e.to_string())
+    })
+}
+
+fn tmp_path(path: &Path) -> PathBuf {
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
+    name.push(format!(".{}.tmp", std::process::id()));
+    path.with_file_name(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failed_write_leaves_nothing() {
+        let dir = std::env::temp_dir().join(format!("fipt-io-{}", std::process::id()));
+        let p = dir.join("x.bin");
+        let e = write_atomic(&p, |tmp| {
+            std::fs::write(tmp, b"half").unwrap();
+            Err("boom".into())
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("x.bin") && e.to_string().contains("boom"));
+        assert!(!p.exists());
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
+        write_bytes_atomic(&p, b"whole").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"whole");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

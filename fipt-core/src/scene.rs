@@ -1,0 +1,16 @@
+//! Scene data and loaders: the triangle mesh, cameras, HDR views and ground-truth maps.
+//!
+//! Owns: file formats (OBJ, EXR, `transforms.json`, `cam.txt`/`K_list.txt`, `scene_meta.json`)
+//! turned into plain data (structs of arrays). Must not touch: ray tracing (fipt-bake) or tensors.
+
+pub mod camera;
+pub mod dataset;
+pub mod image;
+pub mod mesh;
+pub mod meta;
+pub mod procedural;
+
+pub use camera::Camera;
+pub use dataset::{Dataset, LoadOptions, MapKind, Split, View};
+pub use image::Image;
+pub use mesh::Mesh;

@@ -1,0 +1,649 @@
+//! Scene folders: the FIPT synthetic layout, the FIPT real layout and nerfstudio
+//! `transforms.json`, loaded into one `Dataset` of plain arrays.
+//!
+//! Owns: folder layouts, file naming, cross-file validation (sizes, counts). Must not touch: ray
+//! tracing, training.
+
+use super::{Camera, Image, Mesh, meta::SceneMeta};
+use crate::io::{FileError, Result, read_text};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The per-pixel maps a view can carry besides its HDR image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum MapKind {
+    DiffCol,
+    Roughness,
+    Emit,
+    IndexMA,
+    Segmentation,
+    Albedo,
+    BaseColor,
+    Metallic,
+    Normal,
+    Position,
+    Depth,
+    TriIndex,
+    Relight,
+}
+
+impl MapKind {
+    pub const ALL: [MapKind; 13] = [
+        MapKind::DiffCol,
+        MapKind::Roughness,
+        MapKind::Emit,
+        MapKind::IndexMA,
+        MapKind::Segmentation,
+        MapKind::Albedo,
+        MapKind::BaseColor,
+        MapKind::Metallic,
+        MapKind::Normal,
+        MapKind::Position,
+        MapKind::Depth,
+        MapKind::TriIndex,
+        MapKind::Relight,
+    ];
+    /// The maps FIPT itself reads.
+    pub const FIPT: [MapKind; 6] = [
+        MapKind::DiffCol,
+        MapKind::Roughness,
+        MapKind::Emit,
+        MapKind::IndexMA,
+        MapKind::Segmentation,
+        MapKind::Albedo,
+    ];
+
+    pub fn folder(self) -> &'static str {
+        match self {
+            MapKind::DiffCol => "DiffCol",
+            MapKind::Roughness => "Roughness",
+            MapKind::Emit => "Emit",
+            MapKind::IndexMA => "IndexMA",
+            MapKind::Segmentation => "segmentation",
+            MapKind::Albedo => "albedo",
+            MapKind::BaseColor => "BaseColor",
+            MapKind::Metallic => "Metallic",
+            MapKind::Normal => "Normal",
+            MapKind::Position => "Position",
+            MapKind::Depth => "Depth",
+            MapKind::TriIndex => "TriIndex",
+            MapKind::Relight => "Relight",
+        }
+    }
+
+    /// File name of frame `k` (`{k:03d}_0001.exr`, or `{k:03d}.exr` for segmentation/albedo).
+    pub fn file_name(self, k: usize) -> String {
+        match self {
+            MapKind::Segmentation | MapKind::Albedo => format!("{k:03}.exr"),
+            _ => format!("{k:03}_0001.exr"),
+        }
+    }
+
+    /// Number of channels kept in memory: scalar maps keep their first channel.
+    pub fn channels(self) -> usize {
+        match self {
+            MapKind::Roughness
+            | MapKind::IndexMA
+            | MapKind::Segmentation
+            | MapKind::Metallic
+            | MapKind::Depth
+            | MapKind::TriIndex => 1,
+            _ => 3,
+        }
+    }
+
+    /// Maps holding integer labels.
+    pub fn is_label(self) -> bool {
+        matches!(
+            self,
+            MapKind::IndexMA | MapKind::Segmentation | MapKind::TriIndex
+        )
+    }
+}
+
+/// Which scene-folder convention a dataset came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    FiptSynthetic,
+    FiptReal,
+    Nerfstudio,
+}
+
+/// One posed photograph and its optional per-pixel maps.
+#[derive(Clone, Debug)]
+pub struct View {
+    /// Frame index within its split (the `k` of the file names).
+    pub index: usize,
+    pub camera: Camera,
+    /// HDR radiance, 3 channels.
+    pub image: Image,
+    pub maps: BTreeMap<MapKind, Image>,
+}
+
+impl View {
+    pub fn map(&self, kind: MapKind) -> Option<&Image> {
+        self.maps.get(&kind)
+    }
+
+    /// Integer labels of a label map (rounded), row-major.
+    pub fn labels(&self, kind: MapKind) -> Option<Vec<i32>> {
+        self.map(kind).map(|m| {
+            (0..m.num_pixels())
+                .map(|p| m.scalar(p).round() as i32)
+                .collect()
+        })
+    }
+}
+
+/// A set of views of one size.
+#[derive(Clone, Debug)]
+pub struct Split {
+    pub name: String,
+    pub width: usize,
+    pub height: usize,
+    pub views: Vec<View>,
+}
+
+impl Split {
+    pub fn num_pixels(&self) -> usize {
+        self.views.len() * self.width * self.height
+    }
+
+    /// True when every view has the map.
+    pub fn has_map(&self, kind: MapKind) -> bool {
+        !self.views.is_empty() && self.views.iter().all(|v| v.maps.contains_key(&kind))
+    }
+}
+
+/// What to load besides meshes, cameras and images.
+#[derive(Clone, Debug)]
+pub struct LoadOptions {
+    /// Maps to load where present (absent folders are skipped, incomplete folders are errors).
+    pub maps: Vec<MapKind>,
+    /// Also load the `val/` split (synthetic layout) or its stand-in.
+    pub val: bool,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            maps: MapKind::FIPT.to_vec(),
+            val: true,
+        }
+    }
+}
+
+impl LoadOptions {
+    pub fn all_maps() -> Self {
+        Self {
+            maps: MapKind::ALL.to_vec(),
+            val: true,
+        }
+    }
+}
+
+/// A loaded scene folder.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub layout: Layout,
+    pub mesh: Mesh,
+    pub train: Split,
+    pub val: Option<Split>,
+    pub meta: Option<SceneMeta>,
+}
+
+impl Dataset {
+    /// Loads a scene folder, detecting its layout: `train/transforms.json` (FIPT synthetic),
+    /// `cam.txt` (FIPT real) or `transforms.json` (nerfstudio).
+    pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
+        if !root.is_dir() {
+            return Err(FileError::new(root, "scene folder not found"));
+        }
+        let layout = if root.join("train/transforms.json").exists() {
+            Layout::FiptSynthetic
+        } else if root.join("cam.txt").exists() {
+            Layout::FiptReal
+        } else if root.join("transforms.json").exists() {
+            Layout::Nerfstudio
+        } else {
+            return Err(FileError::new(
+                root,
+                "not a scene folder: expected train/transforms.json (FIPT synthetic), cam.txt (FIPT real) or transforms.json (nerfstudio)",
+            ));
+        };
+        let mesh = Mesh::load_obj(&root.join("scene.obj"))?;
+        let (train, val) = match layout {
+            Layout::FiptSynthetic => {
+                let train = load_synthetic_split(root, "train", opts, None)?;
+                let val = if opts.val && root.join("val/transforms.json").exists() {
+                    Some(load_synthetic_split(
+                        root,
+                        "val",
+                        opts,
+                        Some((train.width, train.height)),
+                    )?)
+                } else {
+                    None
+                };
+                (train, val)
+            }
+            Layout::FiptReal => {
+                let train = load_real(root, opts)?;
+                let val = opts.val.then(|| first_views(&train, 8, "val"));
+                (train, val)
+            }
+            Layout::Nerfstudio => {
+                let train = load_nerfstudio(root, opts)?;
+                let val = opts.val.then(|| first_views(&train, 8, "val"));
+                (train, val)
+            }
+        };
+        let meta_path = root.join("scene_meta.json");
+        let meta = if meta_path.exists() {
+            Some(SceneMeta::load(&meta_path)?)
+        } else {
+            None
+        };
+        Ok(Dataset {
+            root: root.to_path_buf(),
+            layout,
+            mesh,
+            train,
+            val,
+            meta,
+        })
+    }
+
+    /// The splits present, train first.
+    pub fn splits(&self) -> Vec<&Split> {
+        std::iter::once(&self.train)
+            .chain(self.val.as_ref())
+            .collect()
+    }
+}
+
+fn first_views(split: &Split, n: usize, name: &str) -> Split {
+    Split {
+        name: name.into(),
+        width: split.width,
+        height: split.height,
+        views: split.views.iter().take(n).cloned().collect(),
+    }
+}
+
+fn parse_json(path: &Path) -> Result<Value> {
+    let text = read_text(path)?;
+    serde_json::from_str(&text).map_err(|e| FileError::new(path, format!("malformed JSON: {e}")))
+}
+
+fn json_f64(v: &Value, key: &str, path: &Path) -> Result<f64> {
+    v.get(key)
+        .and_then(Value::as_f64)
+        .ok_or_else(|| FileError::new(path, format!("missing or non-numeric '{key}'")))
+}
+
+fn json_matrix4(v: &Value, path: &Path, k: usize) -> Result<[[f64; 4]; 4]> {
+    let bad = || {
+        FileError::new(
+            path,
+            format!("frame {k}: 'transform_matrix' must be a 4x4 array of numbers"),
+        )
+    };
+    let rows = v
+        .get("transform_matrix")
+        .and_then(Value::as_array)
+        .ok_or_else(bad)?;
+    if rows.len() != 4 {
+        return Err(bad());
+    }
+    let mut m = [[0.0; 4]; 4];
+    for (i, r) in rows.iter().enumerate() {
+        let r = r.as_array().filter(|r| r.len() == 4).ok_or_else(bad)?;
+        for (j, x) in r.iter().enumerate() {
+            m[i][j] = x.as_f64().ok_or_else(bad)?;
+        }
+    }
+    if m.iter().flatten().any(|x| !x.is_finite()) {
+        return Err(bad());
+    }
+    Ok(m)
+}
+
+fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
+    let frames = v
+        .get("frames")
+        .and_then(Value::as_array)
+        .ok_or_else(|| FileError::new(path, "missing 'frames' array"))?;
+    if frames.is_empty() {
+        return Err(FileError::new(path, "'frames' is empty"));
+    }
+    Ok(frames)
+}
+
+/// Counts `*.exr` files in a folder.
+fn count_exr(dir: &Path) -> Result<usize> {
+    let rd = std::fs::read_dir(dir).map_err(|e| FileError::new(dir, e.to_string()))?;
+    Ok(rd
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            e.path()
+                .extension()
+                .is_some_and(|x| x.eq_ignore_ascii_case("exr"))
+        })
+        .count())
+}
+
+fn check_size(img: &Image, path: &Path, want: (usize, usize)) -> Result<()> {
+    if (img.width, img.height) != want {
+        return Err(FileError::new(
+            path,
+            format!(
+                "image is {}x{} but the scene's images are {}x{}",
+                img.width, img.height, want.0, want.1
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// File name of the HDR photo of frame `k`.
+pub fn image_file(k: usize) -> String {
+    format!("{k:03}_0001.exr")
+}
+
+/// Reads one map file and keeps the channels its kind needs.
+fn read_map(path: &Path, kind: MapKind, size: (usize, usize)) -> Result<Image> {
+    read_sized(path, kind.channels(), kind.is_label(), size)
+}
+
+/// Reads an HDR photo (3 channels).
+fn read_photo(path: &Path, size: (usize, usize)) -> Result<Image> {
+    read_sized(path, 3, false, size)
+}
+
+fn read_sized(path: &Path, channels: usize, is_label: bool, size: (usize, usize)) -> Result<Image> {
+    let img = Image::read_exr(path)?;
+    check_size(&img, path, size)?;
+    let img = if channels == 1 {
+        img.first_channel()
+    } else if img.channels == 1 {
+        let data = img.data.iter().flat_map(|&v| [v, v, v]).collect();
+        Image::from_data(img.width, img.height, 3, data)
+    } else {
+        img
+    };
+    if is_label && let Some(p) = img.data.iter().position(|v| (v - v.round()).abs() > 1e-3) {
+        return Err(FileError::new(
+            path,
+            format!(
+                "label map has a non-integer value {} at row {} col {}",
+                img.data[p],
+                p / img.width,
+                p % img.width
+            ),
+        ));
+    }
+    Ok(img)
+}
+
+/// Loads the optional maps of frame `k` from `dir/<Folder>/` where the folder exists.
+fn load_maps(
+    dir: &Path,
+    k: usize,
+    opts: &LoadOptions,
+    size: (usize, usize),
+) -> Result<BTreeMap<MapKind, Image>> {
+    let mut maps = BTreeMap::new();
+    for &kind in &opts.maps {
+        let folder = dir.join(kind.folder());
+        if !folder.is_dir() {
+            continue;
+        }
+        let path = folder.join(kind.file_name(k));
+        maps.insert(kind, read_map(&path, kind, size)?);
+    }
+    Ok(maps)
+}
+
+fn load_synthetic_split(
+    root: &Path,
+    name: &str,
+    opts: &LoadOptions,
+    size: Option<(usize, usize)>,
+) -> Result<Split> {
+    let dir = root.join(name);
+    let tpath = dir.join("transforms.json");
+    let json = parse_json(&tpath)?;
+    let fov = json_f64(&json, "camera_angle_x", &tpath)?;
+    if !(fov > 0.0 && fov < std::f64::consts::PI) {
+        return Err(FileError::new(
+            &tpath,
+            format!("camera_angle_x = {fov} is not a field of view in (0, pi) radians"),
+        ));
+    }
+    let frames = frames_of(&json, &tpath)?;
+    let img_dir = dir.join("Image");
+    if !img_dir.is_dir() {
+        return Err(FileError::new(&img_dir, "image folder not found"));
+    }
+    let n_img = count_exr(&img_dir)?;
+    if n_img != frames.len() {
+        return Err(FileError::new(
+            &img_dir,
+            format!(
+                "{n_img} EXR images but {} lists {} frames",
+                tpath.display(),
+                frames.len()
+            ),
+        ));
+    }
+    let mats: Vec<[[f64; 4]; 4]> = frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| json_matrix4(f, &tpath, k))
+        .collect::<Result<_>>()?;
+    // The size is set by the first train image (as the reference does).
+    let first = img_dir.join(image_file(0));
+    let size = match size {
+        Some(s) => s,
+        None => {
+            let img = Image::read_exr(&first)?;
+            (img.width, img.height)
+        }
+    };
+    let views: Vec<View> = mats
+        .par_iter()
+        .enumerate()
+        .map(|(k, m)| {
+            let path = img_dir.join(image_file(k));
+            let image = read_photo(&path, size)?;
+            let maps = load_maps(&dir, k, opts, size)?;
+            Ok(View {
+                index: k,
+                camera: Camera::from_fipt_c2w(*m, fov, size.0, size.1),
+                image,
+                maps,
+            })
+        })
+        .collect::<Result<_>>()?;
+    Ok(Split {
+        name: name.into(),
+        width: size.0,
+        height: size.1,
+        views,
+    })
+}
+
+/// Parses a "count line + 3 lines per item" text file into rows of 3 numbers.
+fn parse_triples(path: &Path) -> Result<Vec<[f64; 3]>> {
+    let text = read_text(path)?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, first) = lines
+        .next()
+        .ok_or_else(|| FileError::new(path, "empty file"))?;
+    let n: usize = first
+        .trim()
+        .parse()
+        .map_err(|_| FileError::new(path, format!("line 1: expected a count, found '{first}'")))?;
+    let mut rows = Vec::with_capacity(3 * n);
+    for (ln, l) in lines {
+        let vals: Vec<f64> = l
+            .split_whitespace()
+            .map(|t| t.parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| FileError::new(path, format!("line {}: bad number in '{l}'", ln + 1)))?;
+        if vals.len() != 3 || vals.iter().any(|v| !v.is_finite()) {
+            return Err(FileError::new(
+                path,
+                format!("line {}: expected 3 finite numbers, found '{l}'", ln + 1),
+            ));
+        }
+        rows.push([vals[0], vals[1], vals[2]]);
+    }
+    if rows.len() != 3 * n {
+        return Err(FileError::new(
+            path,
+            format!(
+                "header says {n} cameras ({} lines) but {} lines follow",
+                3 * n,
+                rows.len()
+            ),
+        ));
+    }
+    Ok(rows)
+}
+
+fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
+    let cam_path = root.join("cam.txt");
+    let k_path = root.join("K_list.txt");
+    let cams = parse_triples(&cam_path)?;
+    let ks = parse_triples(&k_path)?;
+    if cams.len() != ks.len() {
+        return Err(FileError::new(
+            &k_path,
+            format!(
+                "{} intrinsics but {} lists {} cameras",
+                ks.len() / 3,
+                cam_path.display(),
+                cams.len() / 3
+            ),
+        ));
+    }
+    let n = cams.len() / 3;
+    let img_dir = root.join("Image");
+    if !img_dir.is_dir() {
+        return Err(FileError::new(&img_dir, "image folder not found"));
+    }
+    let n_img = count_exr(&img_dir)?;
+    if n_img != n {
+        return Err(FileError::new(
+            &img_dir,
+            format!("{n_img} EXR images but cam.txt lists {n} cameras"),
+        ));
+    }
+    let first = Image::read_exr(&img_dir.join(image_file(0)))?;
+    let size = (first.width, first.height);
+    let views = (0..n)
+        .into_par_iter()
+        .map(|k| {
+            let path = img_dir.join(image_file(k));
+            let mut image = read_photo(&path, size)?;
+            image.data.iter_mut().for_each(|v| *v = v.max(0.0));
+            let o = DVec3::from(cams[3 * k]);
+            let target = DVec3::from(cams[3 * k + 1]);
+            let up = DVec3::from(cams[3 * k + 2]);
+            let fwd = target - o;
+            if fwd.length() == 0.0 || up.length() == 0.0 || fwd.normalize().cross(up).length() < 1e-6
+            {
+                return Err(FileError::new(
+                    &cam_path,
+                    format!("camera {k}: look-at point equals origin or up is parallel to the view direction"),
+                ));
+            }
+            let kmat = [ks[3 * k], ks[3 * k + 1], ks[3 * k + 2]];
+            let maps = load_maps(root, k, opts, size)?;
+            Ok(View {
+                index: k,
+                camera: Camera::from_look_at(o, target, up, kmat, size.0, size.1),
+                image,
+                maps,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Split {
+        name: "train".into(),
+        width: size.0,
+        height: size.1,
+        views,
+    })
+}
+
+fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
+    let tpath = root.join("transforms.json");
+    let json = parse_json(&tpath)?;
+    let frames = frames_of(&json, &tpath)?;
+    let get = |f: &Value, key: &str| f.get(key).or_else(|| json.get(key)).and_then(Value::as_f64);
+    let views = frames
+        .par_iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let need = |key: &str| {
+                get(f, key).ok_or_else(|| {
+                    FileError::new(&tpath, format!("frame {k}: missing or non-numeric '{key}'"))
+                })
+            };
+            let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
+            let (w, h) = (need("w")? as usize, need("h")? as usize);
+            let fp = f
+                .get("file_path")
+                .and_then(Value::as_str)
+                .ok_or_else(|| FileError::new(&tpath, format!("frame {k}: missing 'file_path'")))?;
+            let mut path = root.join(fp);
+            if path.extension().is_none() {
+                path.set_extension("exr");
+            }
+            let image = read_photo(&path, (w, h))?;
+            let m = json_matrix4(f, &tpath, k)?;
+            let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+            let mut maps = BTreeMap::new();
+            if opts.maps.contains(&MapKind::Segmentation) {
+                let seg = root.join("segmentation").join(format!("{stem}.exr"));
+                if root.join("segmentation").is_dir() {
+                    maps.insert(
+                        MapKind::Segmentation,
+                        read_map(&seg, MapKind::Segmentation, (w, h))?,
+                    );
+                }
+            }
+            Ok(View {
+                index: k,
+                camera: Camera::from_opengl_c2w(m, fx, fy, cx, cy, w, h),
+                image,
+                maps,
+            })
+        })
+        .collect::<Result<Vec<View>>>()?;
+    let (w, h) = (views[0].image.width, views[0].image.height);
+    if let Some(v) = views
+        .iter()
+        .find(|v| (v.image.width, v.image.height) != (w, h))
+    {
+        return Err(FileError::new(
+            &tpath,
+            format!("frame {} has a different image size than frame 0", v.index),
+        ));
+    }
+    Ok(Split {
+        name: "train".into(),
+        width: w,
+        height: h,
+        views,
+    })
+}

@@ -1,0 +1,183 @@
+//! `fipt-train bench ...`: speed benchmarks with JSON output (medians over repetitions).
+//!
+//! Owns: benchmark workloads and timing. Must not touch: correctness checks (those are tests).
+
+use anyhow::Result;
+use fipt_bake::Accel;
+use fipt_core::rng::Rng;
+use fipt_core::scene::{Camera, Dataset, LoadOptions, Mesh, procedural};
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+use serde_json::{Value, json};
+use std::path::Path;
+use std::time::Instant;
+
+/// Median of a set of durations in seconds.
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Runs `f` once to warm up, then `reps` times on a pool of `threads`; returns seconds each.
+fn time_on_pool(threads: usize, reps: usize, f: &(dyn Fn() + Sync)) -> Result<Vec<f64>> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    Ok(pool.install(|| {
+        f();
+        (0..reps)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64()
+            })
+            .collect()
+    }))
+}
+
+/// Traces all rays (closest hit) in parallel chunks, writing hit distances.
+fn trace_all(accel: &Accel, rays: &[(Vec3, Vec3)], out: &mut [f32]) {
+    out.par_chunks_mut(4096)
+        .zip(rays.par_chunks(4096))
+        .for_each(|(o, r)| {
+            for (t, &(org, dir)) in o.iter_mut().zip(r) {
+                *t = accel
+                    .closest(org, dir, 0.0, f32::INFINITY)
+                    .map_or(f32::INFINITY, |h| h.t);
+            }
+        });
+}
+
+/// Incoherent rays: origins uniform in the bounding box shrunk by 5 % about its centre,
+/// directions uniform on the sphere.
+pub fn incoherent_rays(mesh: &Mesh, n: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
+    let (lo, hi) = mesh.bounds();
+    let (c, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5 * 0.95);
+    (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut r = Rng::new(seed, i as u64);
+            let o = c + half
+                * Vec3::new(
+                    2.0 * r.next_f32() - 1.0,
+                    2.0 * r.next_f32() - 1.0,
+                    2.0 * r.next_f32() - 1.0,
+                );
+            let z = 2.0 * r.next_f32() - 1.0;
+            let ph = std::f32::consts::TAU * r.next_f32();
+            let s = (1.0 - z * z).max(0.0).sqrt();
+            (o, Vec3::new(s * ph.cos(), z, s * ph.sin()))
+        })
+        .collect()
+}
+
+fn camera_rays(cams: &[Camera]) -> Vec<(Vec3, Vec3)> {
+    cams.iter()
+        .flat_map(|c| {
+            let o = c.origin_f32();
+            c.pixel_directions().into_iter().map(move |d| (o, d))
+        })
+        .collect()
+}
+
+/// Cameras spread through a box-shaped room, looking at its centre region.
+fn procedural_cameras(mesh: &Mesh, n: usize) -> Vec<Camera> {
+    let (lo, hi) = mesh.bounds();
+    let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+    let mut r = Rng::new(11, 0);
+    (0..n)
+        .map(|_| {
+            let mut p = || DVec3::new(r.next_f64(), r.next_f64(), r.next_f64());
+            let eye = lo + (hi - lo) * (DVec3::splat(0.15) + 0.7 * p());
+            let target = lo + (hi - lo) * (DVec3::splat(0.3) + 0.4 * p());
+            Camera::look_at_fov(eye, target, DVec3::Y, 70f64.to_radians(), 320, 240)
+        })
+        .collect()
+}
+
+fn bench_rays(accel: &Accel, rays: &[(Vec3, Vec3)], reps: usize) -> Result<Value> {
+    let mut out = vec![0f32; rays.len()];
+    let mut res = serde_json::Map::new();
+    let out_ptr = std::sync::Mutex::new(&mut out);
+    for threads in [1usize, 2] {
+        let times = time_on_pool(threads, reps, &|| {
+            let mut o = out_ptr.lock().unwrap();
+            trace_all(accel, rays, &mut o);
+        })?;
+        let med = median(times.clone());
+        res.insert(
+            format!("threads_{threads}"),
+            json!({"median_s": med, "rays_per_s": rays.len() as f64 / med, "times_s": times}),
+        );
+    }
+    let hit = out.iter().filter(|t| t.is_finite()).count() as f64 / rays.len().max(1) as f64;
+    res.insert("rays".into(), json!(rays.len()));
+    res.insert("hit_fraction".into(), json!(hit));
+    Ok(Value::Object(res))
+}
+
+/// `bench trace`: closest-hit throughput on incoherent and camera rays, 1 and 2 threads.
+pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) -> Result<()> {
+    let (name, mesh, cams) = match scene {
+        Some(dir) => {
+            let ds = Dataset::load(
+                dir,
+                &LoadOptions {
+                    maps: vec![],
+                    val: false,
+                },
+            )?;
+            let cams: Vec<Camera> = ds.train.views.iter().map(|v| v.camera.clone()).collect();
+            (dir.display().to_string(), ds.mesh, cams)
+        }
+        None => {
+            let room = procedural::room(Vec3::new(5.0, 2.7, 4.0), 8);
+            let cams = procedural_cameras(&room.mesh, 16);
+            ("builtin:procedural-room".to_string(), room.mesh, cams)
+        }
+    };
+    let t0 = Instant::now();
+    let accel = Accel::build(&mesh);
+    let build_s = t0.elapsed().as_secs_f64();
+    let incoherent = incoherent_rays(&mesh, n_rays, 0x5eed);
+    let camera = camera_rays(&cams);
+    let inc = bench_rays(&accel, &incoherent, reps)?;
+    let cam = bench_rays(&accel, &camera, reps)?;
+    let r = json!({
+        "bench": "trace",
+        "scene": name,
+        "triangles": mesh.num_triangles(),
+        "bvh_build_s": build_s,
+        "reps": reps,
+        "incoherent": inc,
+        "camera": cam,
+        "reference": {"mitsuba3_llvm_2threads_fipt_room": {"incoherent_rays_per_s": 33.5e6, "camera_rays_per_s": 48.3e6}},
+    });
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "scene {name}: {} triangles, BVH build {build_s:.3} s",
+            mesh.num_triangles()
+        );
+        for kind in ["incoherent", "camera"] {
+            for t in ["threads_1", "threads_2"] {
+                println!(
+                    "{kind:>10} {t}: {:.2} M rays/s ({} rays, hit fraction {:.3})",
+                    r[kind][t]["rays_per_s"].as_f64().unwrap_or(0.0) / 1e6,
+                    r[kind]["rays"],
+                    r[kind]["hit_fraction"].as_f64().unwrap_or(0.0)
+                );
+            }
+        }
+    }
+    Ok(())
+}

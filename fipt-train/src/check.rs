@@ -1,0 +1,246 @@
+//! `fipt-train check`: the dataset doctor. Loads everything, casts every pixel-centre ray and
+//! reports coverage, map presence, fused-segmentation agreement, emitter visibility and, where
+//! the scene carries them, agreement with the renderer's own hit positions and triangle ids.
+//!
+//! Owns: the report. Must not touch: training.
+
+use anyhow::Result;
+use fipt_bake::{Accel, ViewHits, cast_view, segfuse};
+use fipt_core::scene::{Dataset, LoadOptions, MapKind, Split};
+use serde_json::{Value, json};
+use std::path::Path;
+
+/// Agreement below this is reported as a problem.
+const MIN_AGREEMENT: f64 = 0.99;
+
+/// Per-view agreement of fused labels with the given maps: (min, mean, per view).
+fn label_agreement(
+    ds: &Dataset,
+    hits: &[Vec<ViewHits>],
+    kind: MapKind,
+) -> Option<(f64, f64, Vec<f64>)> {
+    let splits = ds.splits();
+    if !splits.iter().all(|s| s.has_map(kind)) {
+        return None;
+    }
+    let labels: Vec<Vec<Vec<i32>>> = splits
+        .iter()
+        .map(|s| s.views.iter().map(|v| v.labels(kind).unwrap()).collect())
+        .collect();
+    let all_hits: Vec<ViewHits> = hits.iter().flatten().cloned().collect();
+    let all_labels: Vec<Vec<i32>> = labels.iter().flatten().cloned().collect();
+    let fused = segfuse::fuse_labels(ds.mesh.num_triangles(), &all_hits, &all_labels, None);
+    let per_view: Vec<f64> = all_hits
+        .iter()
+        .zip(&all_labels)
+        .map(|(h, l)| segfuse::agreement(&segfuse::render_labels(&fused, h), l))
+        .collect();
+    let min = per_view.iter().cloned().fold(f64::INFINITY, f64::min);
+    let mean = per_view.iter().sum::<f64>() / per_view.len() as f64;
+    Some((min, mean, per_view))
+}
+
+fn emitter_views(split: &Split) -> Option<Vec<usize>> {
+    if !split.has_map(MapKind::Emit) {
+        return None;
+    }
+    Some(
+        split
+            .views
+            .iter()
+            .filter(|v| {
+                let e = v.map(MapKind::Emit).unwrap();
+                e.data.iter().any(|&x| x > 0.0)
+            })
+            .map(|v| v.index)
+            .collect(),
+    )
+}
+
+/// Mean hit-position error (m) against `Position` and triangle-id agreement with `TriIndex`.
+fn renderer_agreement(split: &Split, hits: &[ViewHits]) -> (Option<f64>, Option<f64>) {
+    let pos = split.has_map(MapKind::Position).then(|| {
+        let (mut s, mut n) = (0.0f64, 0usize);
+        for (v, h) in split.views.iter().zip(hits) {
+            let m = v.map(MapKind::Position).unwrap();
+            for p in 0..h.num_pixels() {
+                if h.tri[p] >= 0 {
+                    let g = m.rgb(p);
+                    s += (h.position[p] - glam::Vec3::from(g)).length() as f64;
+                    n += 1;
+                }
+            }
+        }
+        s / n.max(1) as f64
+    });
+    let tri = split.has_map(MapKind::TriIndex).then(|| {
+        let (mut eq, mut n) = (0usize, 0usize);
+        for (v, h) in split.views.iter().zip(hits) {
+            let l = v.labels(MapKind::TriIndex).unwrap();
+            eq += h.tri.iter().zip(&l).filter(|(a, b)| a == b).count();
+            n += l.len();
+        }
+        eq as f64 / n.max(1) as f64
+    });
+    (pos, tri)
+}
+
+/// Runs every check and returns the JSON report.
+pub fn check_scene(scene: &Path) -> Result<Value> {
+    let ds = Dataset::load(scene, &LoadOptions::all_maps())?;
+    let accel = Accel::build(&ds.mesh);
+    let splits = ds.splits();
+    let hits: Vec<Vec<ViewHits>> = splits
+        .iter()
+        .map(|s| {
+            s.views
+                .iter()
+                .map(|v| cast_view(&accel, &ds.mesh, &v.camera))
+                .collect()
+        })
+        .collect();
+    let mut problems: Vec<String> = Vec::new();
+    let total: usize = hits.iter().flatten().map(|h| h.num_pixels()).sum();
+    let hit: usize = hits.iter().flatten().map(|h| h.num_hits()).sum();
+    let hit_fraction = hit as f64 / total.max(1) as f64;
+    if hit_fraction < 1.0 {
+        problems.push(format!(
+            "{} of {total} pixel-centre rays miss the mesh (hit fraction {hit_fraction:.4}); missed pixels are not trained on",
+            total - hit
+        ));
+    }
+    let mut maps = serde_json::Map::new();
+    for s in &splits {
+        let present: serde_json::Map<String, Value> = MapKind::ALL
+            .iter()
+            .map(|k| (k.folder().to_string(), Value::Bool(s.has_map(*k))))
+            .collect();
+        maps.insert(s.name.clone(), Value::Object(present));
+    }
+    if !ds.train.has_map(MapKind::IndexMA) && !ds.train.has_map(MapKind::Segmentation) {
+        problems.push(
+            "no IndexMA/ or segmentation/ labels: the segmentation losses cannot be used".into(),
+        );
+    }
+    let mut agree = |kind: MapKind, name: &str| {
+        let a = label_agreement(&ds, &hits, kind);
+        if let Some((min, _, ref per_view)) = a
+            && min < MIN_AGREEMENT
+        {
+            let worst = per_view
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, _)| i)
+                .unwrap_or(0);
+            problems.push(format!(
+                "fused {name} labels agree with the given maps on only {:.2}% of pixels in view {worst} (of train+val): labels disagree with the geometry",
+                min * 100.0
+            ));
+        }
+        a
+    };
+    let part = agree(MapKind::IndexMA, "IndexMA");
+    let sem = agree(MapKind::Segmentation, "segmentation");
+    let mut emitters = serde_json::Map::new();
+    for s in &splits {
+        emitters.insert(
+            s.name.clone(),
+            emitter_views(s).map_or(Value::Null, |v| json!(v)),
+        );
+    }
+    if let Some(v) = emitter_views(&ds.train)
+        && v.is_empty()
+    {
+        problems.push("no train view shows an emitter (Emit > 0 nowhere)".into());
+    }
+    let mut renderer = serde_json::Map::new();
+    for (s, h) in splits.iter().zip(&hits) {
+        let (pos, tri) = renderer_agreement(s, h);
+        if let Some(e) = pos
+            && e > 1e-3
+        {
+            problems.push(format!(
+                "{}: mean hit-position error {e:.2e} m against Position/ (cameras or mesh do not match)",
+                s.name
+            ));
+        }
+        renderer.insert(
+            s.name.clone(),
+            json!({"position_error_mean_m": pos, "tri_index_agreement": tri}),
+        );
+    }
+    let views: usize = splits.iter().map(|s| s.views.len()).sum();
+    let opt = |a: &Option<(f64, f64, Vec<f64>)>, i: usize| {
+        a.as_ref().map(|t| if i == 0 { t.0 } else { t.1 })
+    };
+    Ok(json!({
+        "scene": scene.display().to_string(),
+        "layout": format!("{:?}", ds.layout),
+        "triangles": ds.mesh.num_triangles(),
+        "views": views,
+        "train_views": ds.train.views.len(),
+        "val_views": ds.val.as_ref().map_or(0, |v| v.views.len()),
+        "width": ds.train.width,
+        "height": ds.train.height,
+        "hit_fraction": hit_fraction,
+        "maps": maps,
+        "part_agreement_min": opt(&part, 0),
+        "part_agreement_mean": opt(&part, 1),
+        "semantic_agreement_min": opt(&sem, 0),
+        "semantic_agreement_mean": opt(&sem, 1),
+        "emitter_views": emitters,
+        "renderer_agreement": renderer,
+        "problems": problems,
+    }))
+}
+
+pub fn run(scene: &Path, as_json: bool) -> Result<()> {
+    let r = check_scene(scene)?;
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+        return Ok(());
+    }
+    println!("scene     {}", r["scene"].as_str().unwrap_or(""));
+    println!("layout    {}", r["layout"].as_str().unwrap_or(""));
+    println!(
+        "views     {} ({} train, {} val) at {}x{}, {} triangles",
+        r["views"], r["train_views"], r["val_views"], r["width"], r["height"], r["triangles"]
+    );
+    println!(
+        "hits      {:.4} of pixel-centre rays",
+        r["hit_fraction"].as_f64().unwrap_or(0.0)
+    );
+    let f = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{:.4}", x));
+    println!(
+        "IndexMA   agreement min {} mean {}",
+        f(&r["part_agreement_min"]),
+        f(&r["part_agreement_mean"])
+    );
+    println!(
+        "semantic  agreement min {} mean {}",
+        f(&r["semantic_agreement_min"]),
+        f(&r["semantic_agreement_mean"])
+    );
+    println!("emitters  seen in views {}", r["emitter_views"]);
+    println!("renderer  {}", r["renderer_agreement"]);
+    for (split, m) in r["maps"].as_object().into_iter().flatten() {
+        let have: Vec<&str> = m
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(_, v)| v.as_bool() == Some(true))
+            .map(|(k, _)| k.as_str())
+            .collect();
+        println!("maps      {split}: {}", have.join(" "));
+    }
+    let problems = r["problems"].as_array().cloned().unwrap_or_default();
+    if problems.is_empty() {
+        println!("problems  none");
+    } else {
+        for p in problems {
+            println!("problem   {}", p.as_str().unwrap_or(""));
+        }
+    }
+    Ok(())
+}

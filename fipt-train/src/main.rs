@@ -1,0 +1,74 @@
+//! fipt-train: the fipt command line.
+//!
+//! Owns: argument parsing and dispatch to the pipeline stages and tools. Must not touch: the
+//! maths of any stage (that lives in fipt-core and fipt-bake).
+
+use fipt_train::{bench, check};
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "fipt-train",
+    version,
+    about = "Factorized Inverse Path Tracing in Rust"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Dataset doctor: load a scene, cast every pixel-centre ray and report what is wrong.
+    Check {
+        #[arg(long)]
+        scene: PathBuf,
+        /// Print one JSON object instead of a human report.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Benchmarks (JSON out with --json).
+    Bench {
+        #[command(subcommand)]
+        what: BenchCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// Closest-hit rays per second, 1 and 2 threads, incoherent and camera rays.
+    Trace {
+        /// Scene folder; without it a built-in procedural room (>= 100k triangles) is used.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+        /// Number of incoherent rays.
+        #[arg(long, default_value_t = 4 << 20)]
+        rays: usize,
+        /// Timed repetitions per configuration (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+    },
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let res = match cli.cmd {
+        Cmd::Check { scene, json } => check::run(&scene, json),
+        Cmd::Bench { what } => match what {
+            BenchCmd::Trace {
+                scene,
+                json,
+                rays,
+                reps,
+            } => bench::trace(scene.as_deref(), json, rays, reps),
+        },
+    };
+    if let Err(e) = res {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
