@@ -6,8 +6,7 @@
 use fipt_core::scene::Mesh;
 use glam::{Vec3, Vec3A};
 use obvhs::{
-    BvhBuildParams,
-    cwbvh::{CwBvh, builder::build_cwbvh_from_tris},
+    cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh},
     ray::{Ray, RayHit},
     triangle::Triangle,
 };
@@ -65,7 +64,7 @@ pub struct Accel {
 }
 
 impl Accel {
-    /// Builds the BVH (obvhs "slow" preset: pre-split + reinsertion, best trace speed).
+    /// Builds the BVH: a binned-SAH BVH2 (`sah`) collapsed into obvhs' compressed wide BVH.
     pub fn build(mesh: &Mesh) -> Self {
         let tris: Vec<Triangle> = (0..mesh.num_triangles())
             .map(|t| {
@@ -77,11 +76,8 @@ impl Accel {
                 }
             })
             .collect();
-        let bvh = build_cwbvh_from_tris(
-            &tris,
-            BvhBuildParams::slow_build(),
-            &mut std::time::Duration::default(),
-        );
+        let boxes: Vec<_> = tris.iter().map(|t| t.aabb()).collect();
+        let bvh = bvh2_to_cwbvh(&crate::sah::build_bvh2(&boxes), 3, true, false);
         let leaf_prim: Vec<u32> = bvh.primitive_indices.clone();
         let leaf_tris = leaf_prim
             .iter()

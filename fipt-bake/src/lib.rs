@@ -4,7 +4,10 @@
 //! Must not touch: the tensor model, the CLI.
 
 pub mod accel;
+pub mod bake;
+pub mod lightfield;
 pub mod raycast;
+mod sah;
 pub mod segfuse;
 
 pub use accel::{Accel, Hit};

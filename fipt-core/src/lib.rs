@@ -6,5 +6,6 @@
 
 pub mod brdf;
 pub mod io;
+pub mod model;
 pub mod rng;
 pub mod scene;

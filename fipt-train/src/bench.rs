@@ -181,3 +181,97 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
     }
     Ok(())
 }
+
+/// A synthetic stage-2 batch of `n` pixels (random positions, shadings and radiance).
+pub fn synthetic_batch(n: usize, seed: u64) -> fipt_core::model::Batch {
+    use fipt_core::model::step::SHADING_DIM;
+    let mut r = Rng::new(seed, 1);
+    let x_unit: Vec<[f32; 3]> = (0..n)
+        .map(|_| [r.next_f32(), r.next_f32(), r.next_f32()])
+        .collect();
+    fipt_core::model::Batch {
+        x_world: x_unit
+            .iter()
+            .map(|x| [x[0] * 5.0, x[1] * 2.7, x[2] * 4.0])
+            .collect(),
+        x_unit,
+        shadings: (0..n * SHADING_DIM).map(|_| r.next_f32()).collect(),
+        gt: (0..n * 3).map(|_| r.next_f32()).collect(),
+        seg: (0..n).map(|_| r.below(13) as i32).collect(),
+    }
+}
+
+/// Times `steps` training steps after `warmup` ones; returns per-step seconds.
+fn time_steps(
+    cfg: fipt_core::model::TrainConfig,
+    backend: fipt_core::model::BackendKind,
+    batch: usize,
+    warmup: usize,
+    steps: usize,
+    mode: fipt_core::model::step::SegMode,
+) -> Result<(Vec<f64>, usize)> {
+    let device = backend.device().map_err(anyhow::Error::msg)?;
+    let mut tr = fipt_core::model::Trainer::new(cfg, &device, 7);
+    let params = tr.grid.num_params() + burn::module::Module::num_params(&tr.nets);
+    let b = synthetic_batch(batch, 3);
+    for _ in 0..warmup {
+        tr.step(&b, mode);
+    }
+    let times = (0..steps)
+        .map(|_| {
+            let t = Instant::now();
+            tr.step(&b, mode);
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    Ok((times, params))
+}
+
+/// `bench step`: median time of one stage-2 training step at the reference model size and at a
+/// CPU-sized configuration, per backend.
+pub fn step(
+    backends: &[fipt_core::model::BackendKind],
+    as_json: bool,
+    batch: usize,
+    steps: usize,
+) -> Result<()> {
+    use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig, step::SegMode};
+    let configs = [
+        ("reference", TrainConfig::new()),
+        (
+            "cpu",
+            TrainConfig::new().with_material(
+                MaterialFieldConfig::new().with_grid(
+                    HashGridConfig::new()
+                        .with_levels(16)
+                        .with_log2_table(17)
+                        .with_per_level_scale(1.6),
+                ),
+            ),
+        ),
+    ];
+    let mut rows = Vec::new();
+    for (name, cfg) in configs {
+        for &b in backends {
+            let (times, params) = time_steps(cfg.clone(), b, batch, 2, steps, SegMode::Part)?;
+            let med = median(times.clone());
+            if !as_json {
+                println!(
+                    "{name:>10} {:>8}: {:.1} ms/step (batch {batch}, {params} params)",
+                    b.name(),
+                    med * 1e3
+                );
+            }
+            rows.push(
+                json!({"config": name, "backend": b.name(), "batch": batch, "params": params,
+                "median_s": med, "times_s": times}),
+            );
+        }
+    }
+    let r = json!({"bench": "step", "seg_loss": "part", "results": rows,
+        "reference": {"pytorch_tcnn_s": 0.310, "jax_s": 0.145}});
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    }
+    Ok(())
+}

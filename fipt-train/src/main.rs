@@ -6,6 +6,7 @@
 use fipt_train::{bench, check};
 
 use clap::{Parser, Subcommand};
+use fipt_core::model::BackendKind;
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -52,6 +53,19 @@ enum BenchCmd {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
+    /// Median time of one stage-2 training step (reference and CPU-sized models).
+    Step {
+        /// Backend(s) to time: flex, ndarray, wgpu (default: flex and ndarray).
+        #[arg(long)]
+        backend: Vec<BackendKind>,
+        #[arg(long)]
+        json: bool,
+        #[arg(long, default_value_t = 8192)]
+        batch: usize,
+        /// Timed steps (after 2 warm-up steps).
+        #[arg(long, default_value_t = 10)]
+        steps: usize,
+    },
 }
 
 fn main() {
@@ -65,6 +79,19 @@ fn main() {
                 rays,
                 reps,
             } => bench::trace(scene.as_deref(), json, rays, reps),
+            BenchCmd::Step {
+                backend,
+                json,
+                batch,
+                steps,
+            } => {
+                let b = if backend.is_empty() {
+                    vec![BackendKind::Flex, BackendKind::Ndarray]
+                } else {
+                    backend
+                };
+                bench::step(&b, json, batch, steps)
+            }
         },
     };
     if let Err(e) = res {

@@ -1,0 +1,175 @@
+//! The two neural fields of paper Eq. 14: the material field (hash grid → MLP → a, σ, m) and
+//! the emission mask (positional encoding → 6×128 MLP with a skip at layer 3 → α).
+//!
+//! Owns: the fields' configs, parameters and forward passes. Must not touch: losses, data.
+
+use super::hashgrid::{HashGrid, HashGridConfig};
+use super::pe::{pe_dim, positional_encoding};
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::{Linear, LinearConfig};
+use burn::tensor::activation::{relu, sigmoid};
+use burn::tensor::{Device, Tensor, TensorData};
+
+/// A plain ReLU MLP (no activation after the last layer).
+#[derive(Module, Debug)]
+pub struct Mlp {
+    pub layers: Vec<Linear>,
+}
+
+impl Mlp {
+    pub fn new(dims: &[usize], device: &Device) -> Self {
+        Self {
+            layers: dims
+                .windows(2)
+                .map(|w| LinearConfig::new(w[0], w[1]).init(device))
+                .collect(),
+        }
+    }
+
+    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+        let n = self.layers.len();
+        for (i, l) in self.layers.iter().enumerate() {
+            x = l.forward(x);
+            if i + 1 < n {
+                x = relu(x);
+            }
+        }
+        x
+    }
+}
+
+#[derive(Config, Debug)]
+pub struct MaterialFieldConfig {
+    #[config(default = "HashGridConfig::new()")]
+    pub grid: HashGridConfig,
+    /// Hidden width of the MLP.
+    #[config(default = 64)]
+    pub hidden: usize,
+    /// Hidden layers of the MLP.
+    #[config(default = 2)]
+    pub hidden_layers: usize,
+}
+
+/// Material parameters per point: base colour a [N,3], roughness σ [N,1], metallic m [N,1].
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub a: Tensor<2>,
+    pub sigma: Tensor<2>,
+    pub metallic: Tensor<2>,
+}
+
+/// The material field: a host hash grid (fused op, `hashgrid`) and a burn MLP.
+#[derive(Debug)]
+pub struct MaterialField {
+    pub grid: HashGrid,
+    pub mlp: Mlp,
+}
+
+impl MaterialFieldConfig {
+    /// Builds the field; the grid is initialised from `seed`, the MLP from the device's RNG.
+    pub fn init(&self, device: &Device, seed: u64) -> MaterialField {
+        let grid = self.grid.init(seed);
+        let mut dims = vec![grid.output_dim()];
+        dims.extend(std::iter::repeat_n(self.hidden, self.hidden_layers));
+        dims.push(5);
+        MaterialField {
+            grid,
+            mlp: Mlp::new(&dims, device),
+        }
+    }
+}
+
+/// Eq. 14 (material head): sigmoid outputs → a = s[0..3], σ = 0.02 + 0.98·s[3], m = s[4].
+pub fn decode_material(raw: Tensor<2>) -> Material {
+    let [n, _] = raw.dims();
+    let s = sigmoid(raw);
+    Material {
+        a: s.clone().slice([0..n, 0..3]),
+        sigma: s
+            .clone()
+            .slice([0..n, 3..4])
+            .mul_scalar(0.98)
+            .add_scalar(0.02),
+        metallic: s.slice([0..n, 4..5]),
+    }
+}
+
+impl MaterialField {
+    /// Material at points in the unit cube (inference: encoding on the host, MLP on `device`).
+    pub fn query(&self, x_unit: &[[f32; 3]], device: &Device) -> Material {
+        let enc = self.grid.encode(x_unit);
+        let t = Tensor::<2>::from_data(
+            TensorData::new(enc, [x_unit.len(), self.grid.output_dim()]),
+            device,
+        );
+        decode_material(self.mlp.forward(t))
+    }
+}
+
+#[derive(Config, Debug)]
+pub struct EmissionMaskConfig {
+    /// Positional-encoding frequencies L.
+    #[config(default = 10)]
+    pub freqs: usize,
+    /// Hidden layers D.
+    #[config(default = 6)]
+    pub depth: usize,
+    /// Hidden width C.
+    #[config(default = 128)]
+    pub width: usize,
+    /// Layer whose input is concat(PE, h).
+    #[config(default = 3)]
+    pub skip: usize,
+}
+
+/// The emission mask: α = 1 − exp(−ReLU(raw)) from an MLP on the positional encoding.
+#[derive(Module, Debug)]
+pub struct EmissionMask {
+    pub layers: Vec<Linear>,
+    pub out: Linear,
+    pub freqs: usize,
+    pub skip: usize,
+}
+
+impl EmissionMaskConfig {
+    pub fn init(&self, device: &Device) -> EmissionMask {
+        let pe = pe_dim(self.freqs);
+        let layers = (0..self.depth)
+            .map(|i| {
+                let input = match i {
+                    0 => pe,
+                    i if i == self.skip => self.width + pe,
+                    _ => self.width,
+                };
+                LinearConfig::new(input, self.width).init(device)
+            })
+            .collect();
+        EmissionMask {
+            layers,
+            out: LinearConfig::new(self.width, 1).init(device),
+            freqs: self.freqs,
+            skip: self.skip,
+        }
+    }
+}
+
+impl EmissionMask {
+    /// Raw mask output [N,1] at world positions `x` [N,3].
+    pub fn raw(&self, x: Tensor<2>) -> Tensor<2> {
+        let pe = positional_encoding(x, self.freqs);
+        let mut h = pe.clone();
+        for (i, l) in self.layers.iter().enumerate() {
+            if i == self.skip && i > 0 {
+                h = Tensor::cat(vec![pe.clone(), h], 1);
+            }
+            h = relu(l.forward(h));
+        }
+        self.out.forward(h)
+    }
+}
+
+/// Eq. 14 (emission head): α = 1 − exp(−ReLU(raw)).
+pub fn alpha_from_raw(raw: Tensor<2>) -> Tensor<2> {
+    relu(raw).neg().exp().neg().add_scalar(1.0)
+}

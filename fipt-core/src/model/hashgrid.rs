@@ -1,0 +1,512 @@
+//! Multiresolution hash-grid encoding (Instant-NGP) as a fused host op with its own backward.
+//!
+//! The table lives in host memory as plain `f32`s. `encode` gathers and trilinearly blends the
+//! 8 corners of every level for a batch of points (points in parallel); `backward_table`
+//! scatters the output gradient into a sparse table gradient (levels in parallel: each level
+//! owns a disjoint slice of the table, so the result is deterministic); `backward_input` gives
+//! d(encoding)/d(position) for completeness and checks. `TableAdam` is the matching optimiser: it
+//! updates only the entries that received a gradient this step, as tiny-cuda-nn does for grid
+//! parameters, so a step costs O(batch · levels · 8), not O(table).
+//!
+//! Inputs are in [0,1]³ (the reference feeds [-1,1] and aliases, §5.1). Coarse levels whose
+//! vertex grid fits the level's table are indexed densely; finer ones use the spatial hash
+//! (x·1 ⊕ y·2654435761 ⊕ z·805459861) mod T.
+//!
+//! Owns: the table and its indexing, forward, backward and optimiser. Must not touch: tensors
+//! (the caller moves encodings and gradients to and from the device).
+
+use crate::rng::Rng;
+use burn::config::Config;
+use rayon::prelude::*;
+
+#[derive(Config, Debug)]
+pub struct HashGridConfig {
+    /// Number of levels.
+    #[config(default = 32)]
+    pub levels: usize,
+    /// Features per level.
+    #[config(default = 2)]
+    pub features: usize,
+    /// log2 of the maximum entries per level.
+    #[config(default = 19)]
+    pub log2_table: u32,
+    /// Coarsest grid resolution over [0,1] (the reference's 16 over [-1,1], §5.1).
+    #[config(default = 32.0)]
+    pub base_resolution: f64,
+    /// Resolution growth factor per level.
+    #[config(default = 1.3)]
+    pub per_level_scale: f64,
+    /// Entries start uniform in [-init, init].
+    #[config(default = 1e-4)]
+    pub init: f32,
+}
+
+/// One level's place in the table and its grid.
+#[derive(Clone, Copy, Debug)]
+pub struct Level {
+    /// First entry of the level in the table.
+    pub offset: usize,
+    /// Entries in the level.
+    pub size: usize,
+    /// Continuous scale: position = x·scale + 0.5.
+    pub scale: f32,
+    /// Vertices per axis when indexed densely.
+    pub res: u32,
+    pub dense: bool,
+}
+
+/// The hash-grid encoding and its parameters.
+#[derive(Clone, Debug)]
+pub struct HashGrid {
+    pub levels: Vec<Level>,
+    pub features: usize,
+    /// `entries × features` values, level after level.
+    pub table: Vec<f32>,
+}
+
+const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+impl HashGridConfig {
+    /// Builds the level layout and a table initialised from `seed`.
+    pub fn init(&self, seed: u64) -> HashGrid {
+        let max = 1usize << self.log2_table;
+        let mut levels = Vec::with_capacity(self.levels);
+        let mut offset = 0;
+        for l in 0..self.levels {
+            let scale = self.base_resolution * self.per_level_scale.powi(l as i32) - 1.0;
+            let res = scale.ceil() as u64 + 2;
+            let dense_size = res * res * res;
+            let dense = dense_size <= max as u64;
+            let size = if dense {
+                (dense_size as usize).div_ceil(8) * 8
+            } else {
+                max
+            };
+            levels.push(Level {
+                offset,
+                size,
+                scale: scale as f32,
+                res: res as u32,
+                dense,
+            });
+            offset += size;
+        }
+        let n = offset * self.features;
+        let init = self.init;
+        let table = (0..n)
+            .into_par_iter()
+            .with_min_len(1 << 16)
+            .map(|i| {
+                let mut r = Rng::new(seed, i as u64);
+                (2.0 * r.next_f32() - 1.0) * init
+            })
+            .collect();
+        HashGrid {
+            levels,
+            features: self.features,
+            table,
+        }
+    }
+}
+
+/// The 8 corners of a point's cell on one level: local entry indices and trilinear weights,
+/// plus what the input gradient needs.
+struct Cell {
+    idx: [u32; 8],
+    w: [f32; 8],
+    frac: [f32; 3],
+}
+
+#[inline(always)]
+fn cell(level: &Level, x: [f32; 3]) -> Cell {
+    let mut g = [0u32; 3];
+    let mut frac = [0f32; 3];
+    for k in 0..3 {
+        let p = x[k].clamp(0.0, 1.0) * level.scale + 0.5;
+        let f = p.floor();
+        g[k] = f as u32;
+        frac[k] = p - f;
+    }
+    let mut idx = [0u32; 8];
+    let mut w = [0f32; 8];
+    for c in 0..8 {
+        let b = [(c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32];
+        let v = [g[0] + b[0], g[1] + b[1], g[2] + b[2]];
+        let i = if level.dense {
+            let r = level.res;
+            v[0].min(r - 1) + r * (v[1].min(r - 1) + r * v[2].min(r - 1))
+        } else {
+            (v[0].wrapping_mul(PRIMES[0])
+                ^ v[1].wrapping_mul(PRIMES[1])
+                ^ v[2].wrapping_mul(PRIMES[2]))
+                % level.size as u32
+        };
+        idx[c] = i;
+        let mut wc = 1.0;
+        for k in 0..3 {
+            wc *= if b[k] == 1 { frac[k] } else { 1.0 - frac[k] };
+        }
+        w[c] = wc;
+    }
+    Cell { idx, w, frac }
+}
+
+/// Splits `data` (entries × features) into one mutable slice per level.
+fn split_levels<'a, T>(
+    levels: &[Level],
+    features: usize,
+    mut data: &'a mut [T],
+) -> Vec<&'a mut [T]> {
+    let mut out = Vec::with_capacity(levels.len());
+    for l in levels {
+        let (a, b) = data.split_at_mut(l.size * features);
+        out.push(a);
+        data = b;
+    }
+    out
+}
+
+impl HashGrid {
+    pub fn num_params(&self) -> usize {
+        self.table.len()
+    }
+
+    pub fn output_dim(&self) -> usize {
+        self.levels.len() * self.features
+    }
+
+    /// Encodes points in [0,1]³: returns `n × (levels · features)` values, row-major.
+    pub fn encode(&self, xs: &[[f32; 3]]) -> Vec<f32> {
+        let (nl, nf) = (self.levels.len(), self.features);
+        let mut out = vec![0f32; xs.len() * nl * nf];
+        out.par_chunks_mut(nl * nf)
+            .zip(xs.par_iter())
+            .with_min_len(64)
+            .for_each(|(o, &x)| {
+                for (l, level) in self.levels.iter().enumerate() {
+                    let c = cell(level, x);
+                    let t = &self.table[level.offset * nf..(level.offset + level.size) * nf];
+                    for f in 0..nf {
+                        let mut s = 0.0;
+                        for k in 0..8 {
+                            s += c.w[k] * t[c.idx[k] as usize * nf + f];
+                        }
+                        o[l * nf + f] = s;
+                    }
+                }
+            });
+        out
+    }
+
+    /// Accumulates d loss / d table for the output gradient `grad_out` (`n × levels·features`)
+    /// into `grad` and records the touched entries.
+    pub fn backward_table(&self, xs: &[[f32; 3]], grad_out: &[f32], grad: &mut TableGrad) {
+        let (nl, nf) = (self.levels.len(), self.features);
+        assert_eq!(grad_out.len(), xs.len() * nl * nf);
+        grad.step += 1;
+        let stamp = grad.step;
+        let g_levels = split_levels(&self.levels, nf, &mut grad.values);
+        let m_levels = split_levels(&self.levels, 1, &mut grad.mark);
+        let touched: Vec<Vec<u32>> = g_levels
+            .into_par_iter()
+            .zip(m_levels)
+            .zip(self.levels.par_iter())
+            .enumerate()
+            .map(|(l, ((gv, mark), level))| {
+                let mut t = Vec::new();
+                for (p, &x) in xs.iter().enumerate() {
+                    let c = cell(level, x);
+                    let go = &grad_out[p * nl * nf + l * nf..p * nl * nf + (l + 1) * nf];
+                    for k in 0..8 {
+                        let e = c.idx[k] as usize;
+                        if mark[e] != stamp {
+                            mark[e] = stamp;
+                            t.push((level.offset + e) as u32);
+                        }
+                        for f in 0..nf {
+                            gv[e * nf + f] += c.w[k] * go[f];
+                        }
+                    }
+                }
+                t
+            })
+            .collect();
+        grad.touched = touched;
+    }
+
+    /// d loss / d x for the output gradient (`n × levels·features`), through the trilinear
+    /// weights (the floor is piecewise constant). Points clamped at the border get zero.
+    pub fn backward_input(&self, xs: &[[f32; 3]], grad_out: &[f32]) -> Vec<[f32; 3]> {
+        let (nl, nf) = (self.levels.len(), self.features);
+        xs.par_iter()
+            .enumerate()
+            .map(|(p, &x)| {
+                let mut gx = [0f32; 3];
+                for (l, level) in self.levels.iter().enumerate() {
+                    let c = cell(level, x);
+                    let t = &self.table[level.offset * nf..(level.offset + level.size) * nf];
+                    let go = &grad_out[p * nl * nf + l * nf..p * nl * nf + (l + 1) * nf];
+                    for k in 0..8 {
+                        let b = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+                        let mut dot = 0.0;
+                        for f in 0..nf {
+                            dot += go[f] * t[c.idx[k] as usize * nf + f];
+                        }
+                        for (d, gxd) in gx.iter_mut().enumerate() {
+                            let mut dw = if b[d] == 1 { 1.0 } else { -1.0 };
+                            for (e, (&be, &fe)) in b.iter().zip(&c.frac).enumerate() {
+                                if e != d {
+                                    dw *= if be == 1 { fe } else { 1.0 - fe };
+                                }
+                            }
+                            *gxd += dot * dw * level.scale;
+                        }
+                    }
+                }
+                for (d, g) in gx.iter_mut().enumerate() {
+                    if !(0.0..=1.0).contains(&x[d]) {
+                        *g = 0.0;
+                    }
+                }
+                gx
+            })
+            .collect()
+    }
+}
+
+/// A sparse table gradient: dense storage, plus the entries touched since the last reset.
+#[derive(Clone, Debug)]
+pub struct TableGrad {
+    pub values: Vec<f32>,
+    mark: Vec<u32>,
+    step: u32,
+    /// Touched entries (global entry index), one list per level, each without repeats.
+    pub touched: Vec<Vec<u32>>,
+}
+
+impl TableGrad {
+    pub fn new(grid: &HashGrid) -> Self {
+        let entries = grid.table.len() / grid.features;
+        Self {
+            values: vec![0.0; grid.table.len()],
+            mark: vec![0; entries],
+            step: 0,
+            touched: vec![],
+        }
+    }
+
+    /// Zeroes the touched entries (O(touched)).
+    pub fn clear(&mut self, features: usize) {
+        for list in &self.touched {
+            for &e in list {
+                let e = e as usize * features;
+                self.values[e..e + features].fill(0.0);
+            }
+        }
+        self.touched.clear();
+    }
+}
+
+/// Adam for the table, applied to touched entries only (global step count for bias correction).
+#[derive(Clone, Debug)]
+pub struct TableAdam {
+    pub beta1: f32,
+    pub beta2: f32,
+    pub eps: f32,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: i32,
+}
+
+impl TableAdam {
+    pub fn new(grid: &HashGrid, beta1: f32, beta2: f32, eps: f32) -> Self {
+        Self {
+            beta1,
+            beta2,
+            eps,
+            m: vec![0.0; grid.table.len()],
+            v: vec![0.0; grid.table.len()],
+            t: 0,
+        }
+    }
+
+    /// One Adam step on the touched entries; clears the gradient.
+    pub fn step(&mut self, grid: &mut HashGrid, grad: &mut TableGrad, lr: f32) {
+        self.t += 1;
+        let (b1, b2, eps) = (self.beta1, self.beta2, self.eps);
+        let c1 = 1.0 - b1.powi(self.t);
+        let c2 = 1.0 - b2.powi(self.t);
+        let nf = grid.features;
+        let levels = grid.levels.clone();
+        let p_l = split_levels(&levels, nf, &mut grid.table);
+        let m_l = split_levels(&levels, nf, &mut self.m);
+        let v_l = split_levels(&levels, nf, &mut self.v);
+        let g_l = split_levels(&levels, nf, &mut grad.values);
+        let touched = std::mem::take(&mut grad.touched);
+        p_l.into_par_iter()
+            .zip(m_l)
+            .zip(v_l)
+            .zip(g_l)
+            .zip(levels.par_iter())
+            .zip(touched.par_iter())
+            .for_each(|(((((p, m), v), g), level), list)| {
+                for &e in list {
+                    let base = (e as usize - level.offset) * nf;
+                    for i in base..base + nf {
+                        let gi = g[i];
+                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
+                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
+                        p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
+                        g[i] = 0.0;
+                    }
+                }
+            });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small() -> HashGrid {
+        let mut g = HashGridConfig::new()
+            .with_levels(6)
+            .with_log2_table(10)
+            .with_base_resolution(4.0)
+            .with_per_level_scale(1.8)
+            .init(3);
+        // Larger values than the default init so gradients w.r.t. x are not tiny.
+        let mut r = Rng::new(9, 9);
+        g.table.iter_mut().for_each(|v| *v = r.next_f32() - 0.5);
+        g
+    }
+
+    fn points(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut r = Rng::new(seed, 0);
+        (0..n)
+            .map(|_| {
+                [
+                    0.05 + 0.9 * r.next_f32(),
+                    0.05 + 0.9 * r.next_f32(),
+                    0.05 + 0.9 * r.next_f32(),
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn layout_dense_then_hashed() {
+        let g = HashGridConfig::new().init(0);
+        assert_eq!(g.levels.len(), 32);
+        assert!(g.levels[0].dense && !g.levels[31].dense);
+        assert!(g.levels.iter().all(|l| l.size <= 1 << 19));
+        // Finest resolution ≈ 32·1.3^31 ≈ 1.1e5 vertices per unit.
+        assert!(g.levels[31].scale > 1e5);
+    }
+
+    /// The encoding is linear in the table: d loss/d table from `backward_table` equals a
+    /// finite difference of loss = Σ c·enc for random c (exact up to f32 rounding).
+    #[test]
+    fn table_gradient_matches_finite_differences() {
+        let mut g = small();
+        let xs = points(50, 1);
+        let mut r = Rng::new(5, 5);
+        let c: Vec<f32> = (0..xs.len() * g.output_dim())
+            .map(|_| r.next_f32() - 0.5)
+            .collect();
+        let loss = |g: &HashGrid| -> f64 {
+            g.encode(&xs)
+                .iter()
+                .zip(&c)
+                .map(|(a, b)| (*a as f64) * (*b as f64))
+                .sum()
+        };
+        let mut tg = TableGrad::new(&g);
+        g.backward_table(&xs, &c, &mut tg);
+        let touched: Vec<u32> = tg.touched.iter().flatten().copied().collect();
+        assert!(!touched.is_empty());
+        // Entries not touched have zero gradient.
+        let nz = tg.values.iter().filter(|v| **v != 0.0).count();
+        assert!(nz <= touched.len() * g.features);
+        for &e in touched.iter().step_by(7).take(60) {
+            for f in 0..g.features {
+                let i = e as usize * g.features + f;
+                let h = 1e-2;
+                let old = g.table[i];
+                g.table[i] = old + h;
+                let lp = loss(&g);
+                g.table[i] = old - h;
+                let lm = loss(&g);
+                g.table[i] = old;
+                let fd = (lp - lm) / (2.0 * h as f64);
+                let an = tg.values[i] as f64;
+                assert!(
+                    (fd - an).abs() <= 1e-4 + 1e-3 * an.abs(),
+                    "entry {e}: fd {fd} vs {an}"
+                );
+            }
+        }
+    }
+
+    /// d loss / d x against central differences (within a cell the encoding is smooth).
+    #[test]
+    fn input_gradient_matches_finite_differences() {
+        let g = small();
+        let xs = points(40, 2);
+        let mut r = Rng::new(6, 6);
+        let c: Vec<f32> = (0..g.output_dim()).map(|_| r.next_f32() - 0.5).collect();
+        let f = |x: [f32; 3]| -> f64 {
+            let e = g.encode(&[x]);
+            e.iter().zip(&c).map(|(a, b)| *a as f64 * *b as f64).sum()
+        };
+        let grad_out: Vec<f32> = xs.iter().flat_map(|_| c.iter().copied()).collect();
+        let gx = g.backward_input(&xs, &grad_out);
+        let mut checked = 0;
+        for (p, &x) in xs.iter().enumerate() {
+            for d in 0..3 {
+                let h = 1e-4f32;
+                let (mut a, mut b) = (x, x);
+                a[d] += h;
+                b[d] -= h;
+                // Skip if the step crosses a cell boundary on any level (the encoding has a kink).
+                let crosses = g
+                    .levels
+                    .iter()
+                    .any(|l| (a[d] * l.scale + 0.5).floor() != (b[d] * l.scale + 0.5).floor());
+                if crosses {
+                    continue;
+                }
+                let fd = (f(a) - f(b)) / (2.0 * h as f64);
+                let an = gx[p][d] as f64;
+                assert!(
+                    (fd - an).abs() <= 2e-2 * (1.0 + an.abs()),
+                    "point {p} dim {d}: fd {fd} vs {an}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 60, "only {checked} checks");
+    }
+
+    #[test]
+    fn adam_updates_only_touched_entries_and_clears() {
+        let mut g = small();
+        let before = g.table.clone();
+        let xs = points(10, 3);
+        let go = vec![1.0; xs.len() * g.output_dim()];
+        let mut tg = TableGrad::new(&g);
+        let mut adam = TableAdam::new(&g, 0.9, 0.999, 1e-8);
+        g.backward_table(&xs, &go, &mut tg);
+        let touched: std::collections::HashSet<u32> =
+            tg.touched.iter().flatten().copied().collect();
+        adam.step(&mut g, &mut tg, 1e-2);
+        for e in 0..g.table.len() / g.features {
+            let changed = (0..g.features).any(|f| g.table[e * 2 + f] != before[e * 2 + f]);
+            assert_eq!(changed, touched.contains(&(e as u32)), "entry {e}");
+        }
+        assert!(tg.values.iter().all(|v| *v == 0.0));
+        // First Adam step moves each touched value by lr·sign(g) (|m̂/√v̂| = 1).
+        let e = *touched.iter().next().unwrap() as usize * 2;
+        assert!(((before[e] - g.table[e]).abs() - 1e-2).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,21 @@
+//! The differentiable FIPT model on burn: BRDF terms, encodings, the two fields of Eq. 14, the
+//! factorised renderer, the losses and the training step, on a `Device` chosen at run time.
+//!
+//! Owns: everything that is optimised in stage 2. Must not touch: ray tracing, files.
+
+pub mod backend;
+pub mod brdf;
+pub mod fields;
+pub mod hashgrid;
+pub mod loss;
+pub mod pe;
+pub mod render;
+pub mod step;
+
+pub use backend::BackendKind;
+pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};
+pub use hashgrid::{HashGrid, HashGridConfig};
+pub use step::{Batch, LossParts, TrainConfig, Trainer};
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,269 @@
+//! One stage-2 training step (paper §4.4–4.5, reference §2.3): forward through both fields and
+//! the factorised renderer, the loss parts, backward, Adam. The hash grid is a fused host op:
+//! its encoding enters the graph as a leaf, and the leaf's gradient is scattered into the table
+//! by `HashGrid::backward_table` and applied by `TableAdam`; the MLPs use burn's Adam.
+//!
+//! Owns: `TrainConfig`, `Batch`, `Trainer::step`. Must not touch: pixel sampling, data loading.
+
+use super::brdf::reflectances;
+use super::fields::{
+    EmissionMask, EmissionMaskConfig, MaterialFieldConfig, Mlp, alpha_from_raw, decode_material,
+};
+use super::hashgrid::{HashGrid, TableAdam, TableGrad};
+use super::loss;
+use super::render::{Shadings, composite, render};
+use crate::brdf::ROUGHNESS_LEVELS;
+use crate::rng::Rng;
+use burn::config::Config;
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use std::collections::HashMap;
+
+/// Packed shading values per pixel: L_d (3), L_s0 (6·3), L_s1 (6·3).
+pub const SHADING_DIM: usize = 3 + 6 * ROUGHNESS_LEVELS;
+
+/// Which segmentation loss to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SegMode {
+    /// Eq. 18–19 on part ids (`IndexMA`).
+    Part,
+    /// Eq. 20 on semantic labels.
+    Semantic,
+    /// No segmentation loss.
+    None,
+}
+
+#[derive(Config, Debug)]
+pub struct TrainConfig {
+    #[config(default = "MaterialFieldConfig::new()")]
+    pub material: MaterialFieldConfig,
+    #[config(default = "EmissionMaskConfig::new()")]
+    pub emission: EmissionMaskConfig,
+    #[config(default = 1e-3)]
+    pub lr: f64,
+    #[config(default = 0.9)]
+    pub beta1: f32,
+    #[config(default = 0.999)]
+    pub beta2: f32,
+    #[config(default = 1e-8)]
+    pub eps: f32,
+    /// λ_e of Eq. 16.
+    #[config(default = 1.0)]
+    pub lambda_e: f32,
+    /// λ_d of Eq. 17.
+    #[config(default = 5e-4)]
+    pub lambda_d: f32,
+    /// λ_p of Eq. 18–19.
+    #[config(default = 5e-3)]
+    pub lambda_part: f32,
+    /// λ_s of Eq. 20.
+    #[config(default = 1e-3)]
+    pub lambda_sem: f32,
+    /// Bilateral colour scale s_a of Eq. 20.
+    #[config(default = 0.016_666_668)]
+    pub sem_sigma_a: f32,
+    /// Bilateral position scale s_p of Eq. 20.
+    #[config(default = 0.1)]
+    pub sem_sigma_p: f32,
+    /// Random partners per pixel in Eq. 20.
+    #[config(default = 1024)]
+    pub sem_partners: usize,
+}
+
+/// A batch of training pixels as plain host arrays.
+#[derive(Clone, Debug, Default)]
+pub struct Batch {
+    /// First-hit positions normalised to the unit cube of the scene box (hash-grid input).
+    pub x_unit: Vec<[f32; 3]>,
+    /// First-hit positions in world space (emission-mask input).
+    pub x_world: Vec<[f32; 3]>,
+    /// `SHADING_DIM` values per pixel.
+    pub shadings: Vec<f32>,
+    /// Ground-truth HDR radiance, 3 per pixel.
+    pub gt: Vec<f32>,
+    /// Segment id per pixel (part or semantic label).
+    pub seg: Vec<i32>,
+}
+
+impl Batch {
+    pub fn len(&self) -> usize {
+        self.x_unit.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x_unit.is_empty()
+    }
+}
+
+/// Loss values of one step.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct LossParts {
+    pub total: f32,
+    pub color: f32,
+    pub emission: f32,
+    pub diffuse: f32,
+    pub seg: f32,
+}
+
+/// The optimised networks (everything but the host hash table).
+#[derive(Module, Debug)]
+pub struct Nets {
+    pub material: Mlp,
+    pub emission: EmissionMask,
+}
+
+/// Stage-2 optimiser state.
+pub struct Trainer {
+    pub cfg: TrainConfig,
+    /// Autodiff device.
+    pub device: Device,
+    pub grid: HashGrid,
+    pub nets: Nets,
+    optim: ModuleOptimizer,
+    grid_grad: TableGrad,
+    grid_adam: TableAdam,
+    rng: Rng,
+    pub steps: u64,
+}
+
+fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
+    Tensor::from_data(TensorData::new(v, shape), dev)
+}
+
+fn flat3(v: &[[f32; 3]]) -> Vec<f32> {
+    v.iter().flatten().copied().collect()
+}
+
+impl Trainer {
+    /// A fresh model on `device` (a plain device; autodiff is added here), seeded by `seed`.
+    pub fn new(cfg: TrainConfig, device: &Device, seed: u64) -> Self {
+        device.seed(seed);
+        let ad = device.clone().autodiff();
+        let field = cfg.material.init(&ad, seed);
+        let emission = cfg.emission.init(&ad);
+        let optim = AdamConfig::new()
+            .with_beta_1(cfg.beta1)
+            .with_beta_2(cfg.beta2)
+            .with_epsilon(cfg.eps)
+            .init();
+        let grid_grad = TableGrad::new(&field.grid);
+        let grid_adam = TableAdam::new(&field.grid, cfg.beta1, cfg.beta2, cfg.eps);
+        Self {
+            cfg,
+            device: ad,
+            grid: field.grid,
+            nets: Nets {
+                material: field.mlp,
+                emission,
+            },
+            optim,
+            grid_grad,
+            grid_adam,
+            rng: Rng::new(seed, 0x5e9),
+            steps: 0,
+        }
+    }
+
+    /// One optimisation step on `batch` with segmentation loss `mode`.
+    pub fn step(&mut self, batch: &Batch, mode: SegMode) -> LossParts {
+        let n = batch.len();
+        let dev = self.device.clone();
+        let d = self.grid.output_dim();
+        let enc = tensor2(self.grid.encode(&batch.x_unit), [n, d], &dev).require_grad();
+        let mat = decode_material(self.nets.material.forward(enc.clone()));
+        let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
+        let sh = Shadings::from_packed(tensor2(batch.shadings.clone(), [n, SHADING_DIM], &dev));
+        let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
+        let raw = self
+            .nets
+            .emission
+            .raw(tensor2(flat3(&batch.x_world), [n, 3], &dev));
+        let alpha = alpha_from_raw(raw.clone());
+        let gt = tensor2(batch.gt.clone(), [n, 3], &dev);
+        let lc = loss::color_loss(composite(pred, alpha, gt.clone()), gt);
+        let le = loss::emission_loss(raw, self.cfg.lambda_e);
+        let ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
+        let lseg = self.seg_loss(batch, mode, &mat, spec);
+        let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();
+        let parts = LossParts {
+            total: total.clone().into_scalar(),
+            color: lc.into_scalar(),
+            emission: le.into_scalar(),
+            diffuse: ld.into_scalar(),
+            seg: lseg.into_scalar(),
+        };
+        let grads = total.backward();
+        let g_enc: Vec<f32> = enc
+            .grad(&grads)
+            .expect("encoding is a leaf of the graph")
+            .try_into_vec_as::<f32>()
+            .expect("f32 gradient");
+        self.grid
+            .backward_table(&batch.x_unit, &g_enc, &mut self.grid_grad);
+        self.grid_adam
+            .step(&mut self.grid, &mut self.grid_grad, self.cfg.lr as f32);
+        let gp = GradientsParams::from_grads(grads, &self.nets);
+        self.nets = self.optim.step(self.cfg.lr, self.nets.clone(), gp);
+        self.steps += 1;
+        parts
+    }
+
+    fn seg_loss(
+        &mut self,
+        batch: &Batch,
+        mode: SegMode,
+        mat: &super::fields::Material,
+        spec: Tensor<2>,
+    ) -> Tensor<1> {
+        let n = batch.len();
+        let dev = self.device.clone();
+        // Compact the batch's segment ids to 0..S−1.
+        let mut map: HashMap<i32, i64> = HashMap::new();
+        let compact: Vec<i64> = batch
+            .seg
+            .iter()
+            .map(|s| {
+                let k = map.len() as i64;
+                *map.entry(*s).or_insert(k)
+            })
+            .collect();
+        match mode {
+            SegMode::None => Tensor::<1>::zeros([1], &dev),
+            SegMode::Part => {
+                let seg = Tensor::<1, Int>::from_data(TensorData::new(compact, [n]), &dev);
+                loss::part_loss(
+                    mat.sigma.clone(),
+                    mat.metallic.clone(),
+                    spec,
+                    seg,
+                    map.len(),
+                    self.cfg.lambda_part,
+                )
+            }
+            SegMode::Semantic => {
+                let labels: Vec<i32> = compact.iter().map(|&k| k as i32).collect();
+                let pairs = loss::semantic_pairs(&labels, self.cfg.sem_partners, &mut self.rng);
+                let pos: Vec<f32> = batch
+                    .x_unit
+                    .iter()
+                    .flatten()
+                    .map(|v| 2.0 * v - 1.0)
+                    .collect();
+                loss::semantic_loss(
+                    mat.sigma.clone(),
+                    mat.metallic.clone(),
+                    mat.a.clone(),
+                    tensor2(pos, [n, 3], &dev),
+                    &pairs,
+                    &compact,
+                    map.len(),
+                    self.cfg.sem_sigma_a,
+                    self.cfg.sem_sigma_p,
+                    self.cfg.lambda_sem,
+                )
+            }
+        }
+    }
+}
