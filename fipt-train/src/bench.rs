@@ -209,7 +209,7 @@ fn time_steps(
     warmup: usize,
     steps: usize,
     mode: fipt_core::model::step::SegMode,
-) -> Result<(Vec<f64>, usize)> {
+) -> Result<(Vec<f64>, usize, serde_json::Value)> {
     let device = backend.device().map_err(anyhow::Error::msg)?;
     let mut tr = fipt_core::model::Trainer::new(cfg, &device, 7);
     let params = tr.grid.num_params() + burn::module::Module::num_params(&tr.nets);
@@ -217,6 +217,7 @@ fn time_steps(
     for _ in 0..warmup {
         tr.step(&b, mode);
     }
+    tr.profile = Default::default();
     let times = (0..steps)
         .map(|_| {
             let t = Instant::now();
@@ -224,7 +225,11 @@ fn time_steps(
             t.elapsed().as_secs_f64()
         })
         .collect();
-    Ok((times, params))
+    let p = tr.profile;
+    let k = p.steps.max(1) as f64;
+    let phases = json!({"encode_s": p.encode / k, "forward_s": p.forward / k, "backward_s": p.backward / k,
+        "grid_update_s": p.grid_update / k, "net_update_s": p.net_update / k});
+    Ok((times, params, phases))
 }
 
 /// `bench step`: median time of one stage-2 training step at the reference model size and at a
@@ -253,18 +258,19 @@ pub fn step(
     let mut rows = Vec::new();
     for (name, cfg) in configs {
         for &b in backends {
-            let (times, params) = time_steps(cfg.clone(), b, batch, 2, steps, SegMode::Part)?;
+            let (times, params, phases) =
+                time_steps(cfg.clone(), b, batch, 2, steps, SegMode::Part)?;
             let med = median(times.clone());
             if !as_json {
                 println!(
-                    "{name:>10} {:>8}: {:.1} ms/step (batch {batch}, {params} params)",
+                    "{name:>10} {:>8}: {:.1} ms/step (batch {batch}, {params} params) {phases}",
                     b.name(),
                     med * 1e3
                 );
             }
             rows.push(
                 json!({"config": name, "backend": b.name(), "batch": batch, "params": params,
-                "median_s": med, "times_s": times}),
+                "median_s": med, "times_s": times, "phases_mean_s": phases}),
             );
         }
     }

@@ -5,3 +5,6 @@
 
 pub mod bench;
 pub mod check;
+pub mod config;
+pub mod metrics;
+pub mod stage1;

@@ -30,6 +30,8 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Print the default configuration (the reference constants) as JSON.
+    DefaultConfig,
     /// Benchmarks (JSON out with --json).
     Bench {
         #[command(subcommand)]
@@ -72,6 +74,9 @@ fn main() {
     let cli = Cli::parse();
     let res = match cli.cmd {
         Cmd::Check { scene, json } => check::run(&scene, json),
+        Cmd::DefaultConfig => serde_json::to_string_pretty(&fipt_train::config::Config::default())
+            .map(|s| println!("{s}"))
+            .map_err(Into::into),
         Cmd::Bench { what } => match what {
             BenchCmd::Trace {
                 scene,

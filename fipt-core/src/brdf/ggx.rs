@@ -13,8 +13,9 @@ pub fn reflectances(a: Vec3, m: f32) -> (Vec3, Vec3) {
 #[inline]
 pub fn ggx_d(n_dot_h: f32, sigma: f32) -> f32 {
     let a2 = (sigma * sigma) * (sigma * sigma);
-    let nh = n_dot_h.max(0.0);
-    let d = nh * nh * (a2 - 1.0) + 1.0;
+    let nh = n_dot_h.clamp(0.0, 1.0);
+    // (n·h)²(α² − 1) + 1 written as sin²θ_h + α² cos²θ_h: no cancellation for tiny α.
+    let d = (1.0 - nh) * (1.0 + nh) + a2 * nh * nh;
     a2 / (std::f32::consts::PI * d * d)
 }
 

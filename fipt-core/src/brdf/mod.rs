@@ -25,3 +25,32 @@ pub fn roughness_levels() -> [f32; ROUGHNESS_LEVELS] {
     }
     r
 }
+
+/// Linear interpolation weights over the roughness levels for roughness σ (reference: r =
+/// (σ − 0.02)/0.98·5, blend of floor(r) and ceil(r)). The tensor twin is
+/// `model::render::roughness_weights`.
+pub fn level_weights(sigma: f32) -> [f32; ROUGHNESS_LEVELS] {
+    let r = ((sigma - SIGMA_MIN) / (1.0 - SIGMA_MIN) * (ROUGHNESS_LEVELS - 1) as f32)
+        .clamp(0.0, (ROUGHNESS_LEVELS - 1) as f32);
+    let mut w = [0.0; ROUGHNESS_LEVELS];
+    for (j, wj) in w.iter_mut().enumerate() {
+        *wj = (1.0 - (r - j as f32).abs()).max(0.0);
+    }
+    w
+}
+
+/// Eq. 9–11 on one pixel's packed shadings (L_d, L_s0[6], L_s1[6]):
+/// k_d·L_d + k_s·L_s0(σ) + L_s1(σ).
+pub fn factorised_render(kd: [f32; 3], ks: [f32; 3], sigma: f32, shading: &[f32]) -> [f32; 3] {
+    let w = level_weights(sigma);
+    let mut out = [0.0; 3];
+    for c in 0..3 {
+        let (mut s0, mut s1) = (0.0, 0.0);
+        for (j, wj) in w.iter().enumerate() {
+            s0 += wj * shading[3 + 3 * j + c];
+            s1 += wj * shading[3 + 3 * ROUGHNESS_LEVELS + 3 * j + c];
+        }
+        out[c] = kd[c] * shading[c] + ks[c] * s0 + s1;
+    }
+    out
+}

@@ -16,8 +16,10 @@ pub fn reflectances(a: Tensor<2>, m: Tensor<2>) -> (Tensor<2>, Tensor<2>) {
 /// Eq. 6: GGX D(n·h) with α = σ².
 pub fn ggx_d(n_dot_h: Tensor<2>, sigma: Tensor<2>) -> Tensor<2> {
     let a2 = sigma.powi_scalar(4);
-    let nh = n_dot_h.clamp_min(0.0);
-    let d = nh.clone() * nh * (a2.clone().sub_scalar(1.0)) + 1.0;
+    let nh = n_dot_h.clamp(0.0, 1.0);
+    // (n·h)²(α² − 1) + 1 as sin²θ_h + α² cos²θ_h (no cancellation for tiny α).
+    let nh2 = nh.clone() * nh.clone();
+    let d = nh.clone().neg().add_scalar(1.0) * nh.add_scalar(1.0) + a2.clone() * nh2;
     a2 / (d.clone() * d).mul_scalar(PI)
 }
 

@@ -19,6 +19,7 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use std::collections::HashMap;
+use std::time::Instant;
 
 /// Packed shading values per pixel: L_d (3), L_s0 (6·3), L_s1 (6·3).
 pub const SHADING_DIM: usize = 3 + 6 * ROUGHNESS_LEVELS;
@@ -126,6 +127,24 @@ pub struct Trainer {
     grid_adam: TableAdam,
     rng: Rng,
     pub steps: u64,
+    /// Accumulated time per phase of `step`.
+    pub profile: StepProfile,
+}
+
+/// Seconds spent per phase of the training step, summed over `steps` steps.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct StepProfile {
+    /// Hash-grid encoding on the host.
+    pub encode: f64,
+    /// Tensor forward: MLPs, renderer, losses (incl. reading the loss values).
+    pub forward: f64,
+    /// Autodiff backward and reading the encoding gradient.
+    pub backward: f64,
+    /// Hash-grid backward and sparse Adam.
+    pub grid_update: f64,
+    /// burn Adam on the MLPs.
+    pub net_update: f64,
+    pub steps: u64,
 }
 
 fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
@@ -163,6 +182,7 @@ impl Trainer {
             grid_adam,
             rng: Rng::new(seed, 0x5e9),
             steps: 0,
+            profile: StepProfile::default(),
         }
     }
 
@@ -171,7 +191,9 @@ impl Trainer {
         let n = batch.len();
         let dev = self.device.clone();
         let d = self.grid.output_dim();
+        let t0 = Instant::now();
         let enc = tensor2(self.grid.encode(&batch.x_unit), [n, d], &dev).require_grad();
+        let t1 = Instant::now();
         let mat = decode_material(self.nets.material.forward(enc.clone()));
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
         let sh = Shadings::from_packed(tensor2(batch.shadings.clone(), [n, SHADING_DIM], &dev));
@@ -194,18 +216,29 @@ impl Trainer {
             diffuse: ld.into_scalar(),
             seg: lseg.into_scalar(),
         };
+        let t2 = Instant::now();
         let grads = total.backward();
         let g_enc: Vec<f32> = enc
             .grad(&grads)
             .expect("encoding is a leaf of the graph")
             .try_into_vec_as::<f32>()
             .expect("f32 gradient");
+        let t3 = Instant::now();
         self.grid
             .backward_table(&batch.x_unit, &g_enc, &mut self.grid_grad);
         self.grid_adam
             .step(&mut self.grid, &mut self.grid_grad, self.cfg.lr as f32);
+        let t4 = Instant::now();
         let gp = GradientsParams::from_grads(grads, &self.nets);
         self.nets = self.optim.step(self.cfg.lr, self.nets.clone(), gp);
+        let t5 = Instant::now();
+        let p = &mut self.profile;
+        p.encode += (t1 - t0).as_secs_f64();
+        p.forward += (t2 - t1).as_secs_f64();
+        p.backward += (t3 - t2).as_secs_f64();
+        p.grid_update += (t4 - t3).as_secs_f64();
+        p.net_update += (t5 - t4).as_secs_f64();
+        p.steps += 1;
         self.steps += 1;
         parts
     }
@@ -265,5 +298,52 @@ impl Trainer {
                 )
             }
         }
+    }
+}
+
+/// Host-side material values: base colour (3 per point), roughness and metallic (1 per point).
+#[derive(Clone, Debug, Default)]
+pub struct MaterialValues {
+    pub a: Vec<f32>,
+    pub sigma: Vec<f32>,
+    pub metallic: Vec<f32>,
+}
+
+/// Points per inference batch.
+const INFER_CHUNK: usize = 1 << 16;
+
+impl Trainer {
+    /// The material field at unit-cube points (inference, batched, no autodiff).
+    pub fn material(&self, x_unit: &[[f32; 3]]) -> MaterialValues {
+        let mlp = self.nets.material.valid();
+        let dev = self.device.clone().inner();
+        let mut out = MaterialValues::default();
+        for chunk in x_unit.chunks(INFER_CHUNK) {
+            let n = chunk.len();
+            let enc = tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev);
+            let m = decode_material(mlp.forward(enc));
+            out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));
+            out.sigma
+                .extend(m.sigma.try_into_vec_as::<f32>().expect("f32"));
+            out.metallic
+                .extend(m.metallic.try_into_vec_as::<f32>().expect("f32"));
+        }
+        out
+    }
+
+    /// The emission mask α at world points (inference, batched).
+    pub fn alpha(&self, x_world: &[[f32; 3]]) -> Vec<f32> {
+        let mask = self.nets.emission.valid();
+        let dev = self.device.clone().inner();
+        let mut out = Vec::with_capacity(x_world.len());
+        for chunk in x_world.chunks(INFER_CHUNK) {
+            let x = tensor2(flat3(chunk), [chunk.len(), 3], &dev);
+            out.extend(
+                alpha_from_raw(mask.raw(x))
+                    .try_into_vec_as::<f32>()
+                    .expect("f32"),
+            );
+        }
+        out
     }
 }

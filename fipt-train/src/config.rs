@@ -1,0 +1,359 @@
+//! Run configuration as data (`configs/*.json`): every key is known, typed and range-checked,
+//! and any error names the key (`train.lr: invalid type ...`).
+//!
+//! Owns: the config schema, its defaults (the reference constants) and validation. Must not
+//! touch: what the stages do with it.
+
+use anyhow::{Context, Result, bail};
+use fipt_bake::bake::BakeConfig;
+use fipt_core::model::step::SegMode;
+use fipt_core::model::{
+    BackendKind, EmissionMaskConfig, HashGridConfig, MaterialFieldConfig, TrainConfig,
+};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The whole pipeline's configuration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub seed: u64,
+    pub backend: BackendKind,
+    pub bake: BakeConfig,
+    pub train: TrainSection,
+    pub emitters: EmitterSection,
+    pub maps: MapsSection,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            backend: BackendKind::DEFAULT,
+            bake: BakeConfig::default(),
+            train: TrainSection::default(),
+            emitters: EmitterSection::default(),
+            maps: MapsSection::default(),
+        }
+    }
+}
+
+/// Which segmentation loss: `auto` takes the part loss where `IndexMA` exists, else semantic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SegChoice {
+    Auto,
+    Part,
+    Semantic,
+    None,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GridSection {
+    pub levels: usize,
+    pub features: usize,
+    pub log2_table: u32,
+    pub base_resolution: f64,
+    pub per_level_scale: f64,
+}
+
+impl Default for GridSection {
+    /// Reference: 32 levels, 2 features, 2^19 entries, base 16 over [-1,1] (= 32 over [0,1]), scale 1.3.
+    fn default() -> Self {
+        Self {
+            levels: 32,
+            features: 2,
+            log2_table: 19,
+            base_resolution: 32.0,
+            per_level_scale: 1.3,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainSection {
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    pub seg: SegChoice,
+    pub lambda_e: f32,
+    pub lambda_d: f32,
+    pub lambda_part: f32,
+    pub lambda_sem: f32,
+    pub sem_partners: usize,
+    pub grid: GridSection,
+    pub mlp_hidden: usize,
+    pub mlp_layers: usize,
+    pub emission_freqs: usize,
+    pub emission_depth: usize,
+    pub emission_width: usize,
+}
+
+impl Default for TrainSection {
+    fn default() -> Self {
+        Self {
+            epochs: 2,
+            batch: 8192,
+            lr: 1e-3,
+            seg: SegChoice::Auto,
+            lambda_e: 1.0,
+            lambda_d: 5e-4,
+            lambda_part: 5e-3,
+            lambda_sem: 1e-3,
+            sem_partners: 1024,
+            grid: GridSection::default(),
+            mlp_hidden: 64,
+            mlp_layers: 2,
+            emission_freqs: 10,
+            emission_depth: 6,
+            emission_width: 128,
+        }
+    }
+}
+
+impl TrainSection {
+    /// The model's burn config.
+    pub fn model_config(&self) -> TrainConfig {
+        let g = &self.grid;
+        TrainConfig::new()
+            .with_lr(self.lr)
+            .with_lambda_e(self.lambda_e)
+            .with_lambda_d(self.lambda_d)
+            .with_lambda_part(self.lambda_part)
+            .with_lambda_sem(self.lambda_sem)
+            .with_sem_partners(self.sem_partners)
+            .with_material(
+                MaterialFieldConfig::new()
+                    .with_grid(
+                        HashGridConfig::new()
+                            .with_levels(g.levels)
+                            .with_features(g.features)
+                            .with_log2_table(g.log2_table)
+                            .with_base_resolution(g.base_resolution)
+                            .with_per_level_scale(g.per_level_scale),
+                    )
+                    .with_hidden(self.mlp_hidden)
+                    .with_hidden_layers(self.mlp_layers),
+            )
+            .with_emission(
+                EmissionMaskConfig::new()
+                    .with_freqs(self.emission_freqs)
+                    .with_depth(self.emission_depth)
+                    .with_width(self.emission_width),
+            )
+    }
+
+    /// The segmentation loss to use given which label maps exist.
+    pub fn seg_mode(&self, has_part: bool, has_semantic: bool) -> SegMode {
+        match self.seg {
+            SegChoice::Part => SegMode::Part,
+            SegChoice::Semantic => SegMode::Semantic,
+            SegChoice::None => SegMode::None,
+            SegChoice::Auto if has_part => SegMode::Part,
+            SegChoice::Auto if has_semantic => SegMode::Semantic,
+            SegChoice::Auto => SegMode::None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EmitterSection {
+    pub samples_per_triangle: usize,
+    pub threshold: f32,
+}
+
+impl Default for EmitterSection {
+    fn default() -> Self {
+        Self {
+            samples_per_triangle: 100,
+            threshold: 0.01,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapsSection {
+    /// Monte Carlo samples of the directional albedo a′ per pixel.
+    pub albedo_samples: usize,
+}
+
+impl Default for MapsSection {
+    fn default() -> Self {
+        Self {
+            albedo_samples: 128,
+        }
+    }
+}
+
+fn check(ok: bool, key: &str, what: &str) -> Result<()> {
+    if !ok {
+        bail!("{key}: {what}");
+    }
+    Ok(())
+}
+
+impl Config {
+    /// Parses JSON text; errors name the offending key.
+    pub fn from_json(text: &str) -> Result<Config> {
+        let de = &mut serde_json::Deserializer::from_str(text);
+        let cfg: Config = serde_path_to_error::deserialize(de).map_err(|e| {
+            let path = e.path().to_string();
+            anyhow::anyhow!("{path}: {}", e.into_inner())
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn load(path: &Path) -> Result<Config> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        Self::from_json(&text).with_context(|| format!("{}: bad config", path.display()))
+    }
+
+    /// Range checks.
+    pub fn validate(&self) -> Result<()> {
+        let b = &self.bake;
+        check(
+            b.voxel_res >= 8 && b.voxel_res.is_multiple_of(8) && b.voxel_res <= 4096,
+            "bake.voxel_res",
+            "must be a multiple of 8 in [8, 4096]",
+        )?;
+        check(
+            b.samples.diffuse >= 1,
+            "bake.samples.diffuse",
+            "must be >= 1",
+        )?;
+        check(
+            b.samples.specular.iter().all(|&s| s >= 1),
+            "bake.samples.specular",
+            "every count must be >= 1",
+        )?;
+        check(
+            b.filter.specular_levels.iter().all(|&j| j < 6),
+            "bake.filter.specular_levels",
+            "levels are 0..5",
+        )?;
+        check(
+            b.filter.sigma_px > 0.0 && b.filter.sigma_plane_px > 0.0,
+            "bake.filter.sigma_px",
+            "filter scales must be > 0",
+        )?;
+        check(
+            b.filter.normal_power >= 0.0,
+            "bake.filter.normal_power",
+            "must be >= 0",
+        )?;
+        let t = &self.train;
+        check(t.epochs >= 1, "train.epochs", "must be >= 1")?;
+        check(t.batch >= 1, "train.batch", "must be >= 1")?;
+        check(t.lr > 0.0 && t.lr.is_finite(), "train.lr", "must be > 0")?;
+        for (k, v) in [
+            ("train.lambda_e", t.lambda_e),
+            ("train.lambda_d", t.lambda_d),
+            ("train.lambda_part", t.lambda_part),
+            ("train.lambda_sem", t.lambda_sem),
+        ] {
+            check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
+        }
+        check(t.sem_partners >= 1, "train.sem_partners", "must be >= 1")?;
+        let g = &t.grid;
+        check(
+            (1..=64).contains(&g.levels),
+            "train.grid.levels",
+            "must be in [1, 64]",
+        )?;
+        check(
+            (1..=8).contains(&g.features),
+            "train.grid.features",
+            "must be in [1, 8]",
+        )?;
+        check(
+            (8..=24).contains(&g.log2_table),
+            "train.grid.log2_table",
+            "must be in [8, 24]",
+        )?;
+        check(
+            g.base_resolution >= 2.0,
+            "train.grid.base_resolution",
+            "must be >= 2",
+        )?;
+        check(
+            g.per_level_scale >= 1.0,
+            "train.grid.per_level_scale",
+            "must be >= 1",
+        )?;
+        check(
+            t.mlp_hidden >= 1 && t.mlp_layers >= 1,
+            "train.mlp_hidden",
+            "MLP sizes must be >= 1",
+        )?;
+        check(
+            t.emission_depth >= 1 && t.emission_width >= 1,
+            "train.emission_depth",
+            "MLP sizes must be >= 1",
+        )?;
+        check(
+            self.emitters.samples_per_triangle >= 1,
+            "emitters.samples_per_triangle",
+            "must be >= 1",
+        )?;
+        check(
+            (0.0..1.0).contains(&self.emitters.threshold),
+            "emitters.threshold",
+            "must be in [0, 1)",
+        )?;
+        check(
+            self.maps.albedo_samples >= 1,
+            "maps.albedo_samples",
+            "must be >= 1",
+        )?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_name_the_key() {
+        let e = Config::from_json(r#"{"train": {"lr": "fast"}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.lr") && e.contains("invalid type"), "{e}");
+        let e = Config::from_json(r#"{"train": {"grid": {"levls": 3}}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.grid") && e.contains("levls"), "{e}");
+        let e = Config::from_json(r#"{"bake": {"voxel_res": 100}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bake.voxel_res"), "{e}");
+        let e = Config::from_json(r#"{"emitters": {"threshold": 2.0}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("emitters.threshold"), "{e}");
+        let e = Config::from_json(r#"{"backend": "cuda"}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("backend"), "{e}");
+        assert_eq!(Config::from_json("{}").unwrap(), Config::default());
+    }
+
+    #[test]
+    fn shipped_configs_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        for name in ["default.json", "fast.json"] {
+            Config::load(&dir.join(name)).unwrap();
+        }
+        // default.json holds the reference constants.
+        assert_eq!(
+            Config::load(&dir.join("default.json")).unwrap(),
+            Config::default()
+        );
+    }
+}
