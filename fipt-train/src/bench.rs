@@ -281,3 +281,85 @@ pub fn step(
     }
     Ok(())
 }
+
+/// `bench bake`: secondary rays per second of the stage-1 bake on a built-in scene (procedural
+/// room, 8 views of 160×120, reference sample counts), 1 and 2 threads, plus the filter's cost.
+pub fn bake(as_json: bool, reps: usize) -> Result<()> {
+    use fipt_bake::bake::{BakeConfig, BakeView, bake_views, build_light_field};
+    let room = procedural::room(Vec3::new(5.0, 2.7, 4.0), 2);
+    let accel = Accel::build(&room.mesh);
+    let cams: Vec<Camera> = procedural_cameras(&room.mesh, 8)
+        .into_iter()
+        .map(|c| {
+            Camera::look_at_fov(
+                c.origin,
+                c.origin + c.rotation.z_axis,
+                DVec3::Y,
+                70f64.to_radians(),
+                160,
+                120,
+            )
+        })
+        .collect();
+    let hits: Vec<_> = cams
+        .iter()
+        .map(|c| fipt_bake::cast_view(&accel, &room.mesh, c))
+        .collect();
+    // Radiance: a bright ceiling panel, a grey room.
+    let images: Vec<Vec<f32>> = hits
+        .iter()
+        .map(|h| {
+            h.tri
+                .iter()
+                .flat_map(|&t| {
+                    let lit = t >= 0 && room.part_of(t as usize) == Some(room.parts.len() - 1);
+                    if lit {
+                        [20.0, 19.0, 17.0]
+                    } else {
+                        [0.3, 0.3, 0.3]
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let views: Vec<BakeView> = hits
+        .iter()
+        .zip(&images)
+        .zip(&cams)
+        .map(|((h, i), c)| BakeView {
+            hits: h,
+            image: i,
+            focal: c.fx as f32,
+        })
+        .collect();
+    let cfg = BakeConfig::default();
+    let lf = build_light_field(&views, cfg.voxel_res);
+    let rays =
+        views.iter().map(|v| v.hits.num_hits()).sum::<usize>() * cfg.samples.rays_per_pixel();
+    let mut res = serde_json::Map::new();
+    for threads in [1usize, 2] {
+        let times = time_on_pool(threads, reps, &|| {
+            bake_views(&accel, &lf, &views, &cfg, &|_| {});
+        })?;
+        let med = median(times.clone());
+        res.insert(
+            format!("threads_{threads}"),
+            json!({"median_s": med, "rays_per_s": rays as f64 / med, "times_s": times}),
+        );
+    }
+    let r = json!({"bench": "bake", "scene": "builtin:procedural-room", "triangles": room.mesh.num_triangles(),
+        "views": views.len(), "secondary_rays": rays, "samples": cfg.samples, "results": res});
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        for t in ["threads_1", "threads_2"] {
+            println!(
+                "bake {t}: {:.2} M rays/s ({} rays, median {:.2} s)",
+                r["results"][t]["rays_per_s"].as_f64().unwrap_or(0.0) / 1e6,
+                rays,
+                r["results"][t]["median_s"].as_f64().unwrap_or(0.0)
+            );
+        }
+    }
+    Ok(())
+}

@@ -3,7 +3,9 @@
 //!
 //! Owns: the dataset doctor (`check`), benchmarks (`bench`). Must not touch: model maths.
 
+pub mod bake_cmd;
 pub mod bench;
+pub mod cache;
 pub mod check;
 pub mod config;
 pub mod metrics;

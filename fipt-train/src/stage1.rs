@@ -52,16 +52,7 @@ pub fn bake(
     show_progress: bool,
 ) -> Baked {
     let hits = cast_split(accel, mesh, train);
-    let views: Vec<BakeView> = train
-        .views
-        .iter()
-        .zip(&hits)
-        .map(|(v, h)| BakeView {
-            hits: h,
-            image: &v.image.data,
-            focal: v.camera.fx as f32,
-        })
-        .collect();
+    let views = train_views(train, &hits);
     let light_field = build_light_field(&views, cfg.voxel_res);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
     let shadings = bake_views(accel, &light_field, &views, cfg, &|_| pb.inc(1));
@@ -72,4 +63,48 @@ pub fn bake(
         light_field,
         shadings,
     }
+}
+
+/// Stage 1 with the on-disk cache: loads `out/cache/shadings.bin` when its key matches, else
+/// bakes and writes it. Returns the products and whether they came from the cache.
+pub fn bake_cached(
+    out: &std::path::Path,
+    ds: &fipt_core::scene::Dataset,
+    accel: &Accel,
+    cfg: &BakeConfig,
+    show_progress: bool,
+) -> anyhow::Result<(Baked, bool)> {
+    let key = crate::cache::cache_key(ds, cfg);
+    let path = out.join("cache").join("shadings.bin");
+    let (w, h) = (ds.train.width, ds.train.height);
+    if let Some(shadings) = crate::cache::load(&path, key, ds.train.views.len(), w, h)? {
+        let hits = cast_split(accel, &ds.mesh, &ds.train);
+        let views: Vec<BakeView> = train_views(&ds.train, &hits);
+        let light_field = build_light_field(&views, cfg.voxel_res);
+        drop(views);
+        return Ok((
+            Baked {
+                hits,
+                light_field,
+                shadings,
+            },
+            true,
+        ));
+    }
+    let baked = bake(accel, &ds.mesh, &ds.train, cfg, show_progress);
+    crate::cache::save(&path, key, w, h, &baked.shadings)?;
+    Ok((baked, false))
+}
+
+fn train_views<'a>(train: &'a Split, hits: &'a [ViewHits]) -> Vec<BakeView<'a>> {
+    train
+        .views
+        .iter()
+        .zip(hits)
+        .map(|(v, h)| BakeView {
+            hits: h,
+            image: &v.image.data,
+            focal: v.camera.fx as f32,
+        })
+        .collect()
 }

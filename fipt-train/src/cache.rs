@@ -1,0 +1,173 @@
+//! The shading cache on disk: one fast binary file per scene (reused while the scene, the bake
+//! config and the code version are unchanged), plus EXR images in the reference's naming so
+//! people can look at them, and PNG previews.
+//!
+//! Owns: cache keys and file formats of stage-1 outputs. Must not touch: how shadings are made.
+
+use anyhow::{Context, Result, bail};
+use fipt_bake::bake::{BakeConfig, SHADING_DIM};
+use fipt_core::io::{Fnv64, write_atomic};
+use fipt_core::scene::{Dataset, Image};
+use std::io::{Read, Write};
+use std::path::Path;
+
+const MAGIC: &[u8; 8] = b"FIPTSHD1";
+/// Bumped whenever the bake's maths or this format changes.
+pub const BAKE_CODE_VERSION: u32 = 1;
+
+/// Cache key of a scene's bake: code version, config, seed, mesh, cameras and train images.
+pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> u64 {
+    let mut h = Fnv64::default();
+    h.bytes(&BAKE_CODE_VERSION.to_le_bytes());
+    h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
+    h.bytes(serde_json::to_string(cfg).unwrap_or_default().as_bytes());
+    h.bytes(&cfg.seed.to_le_bytes());
+    for v in &ds.mesh.vertices {
+        h.f32s(&v.to_array());
+    }
+    for t in &ds.mesh.triangles {
+        for i in t {
+            h.bytes(&i.to_le_bytes());
+        }
+    }
+    for v in &ds.train.views {
+        let c = &v.camera;
+        for x in c
+            .rotation
+            .to_cols_array()
+            .iter()
+            .chain(&c.origin.to_array())
+            .chain(&[c.fx, c.fy, c.cx, c.cy])
+        {
+            h.bytes(&x.to_le_bytes());
+        }
+        h.f32s(&v.image.data);
+    }
+    h.finish()
+}
+
+/// Writes the binary cache atomically.
+pub fn save(
+    path: &Path,
+    key: u64,
+    width: usize,
+    height: usize,
+    shadings: &[Vec<f32>],
+) -> Result<()> {
+    write_atomic(path, |tmp| {
+        let f = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
+        let mut w = std::io::BufWriter::new(f);
+        let mut head = Vec::new();
+        head.extend_from_slice(MAGIC);
+        head.extend_from_slice(&key.to_le_bytes());
+        for v in [shadings.len(), width, height, SHADING_DIM] {
+            head.extend_from_slice(&(v as u64).to_le_bytes());
+        }
+        w.write_all(&head).map_err(|e| e.to_string())?;
+        for s in shadings {
+            let bytes: Vec<u8> = s.iter().flat_map(|x| x.to_le_bytes()).collect();
+            w.write_all(&bytes).map_err(|e| e.to_string())?;
+        }
+        w.flush().map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
+
+/// Loads the binary cache if it exists and its key, sizes and length match; `Ok(None)` when it
+/// is absent or stale, an error when it is corrupt.
+pub fn load(
+    path: &Path,
+    key: u64,
+    views: usize,
+    width: usize,
+    height: usize,
+) -> Result<Option<Vec<Vec<f32>>>> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let mut f =
+        std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let mut head = [0u8; 48];
+    if f.read_exact(&mut head).is_err() || &head[..8] != MAGIC {
+        bail!(
+            "{}: not a fipt shading cache (delete it to rebake)",
+            path.display()
+        );
+    }
+    let num = |i: usize| u64::from_le_bytes(head[8 + 8 * i..16 + 8 * i].try_into().unwrap());
+    if num(0) != key {
+        return Ok(None);
+    }
+    if (num(1), num(2), num(3), num(4))
+        != (
+            views as u64,
+            width as u64,
+            height as u64,
+            SHADING_DIM as u64,
+        )
+    {
+        return Ok(None);
+    }
+    let per_view = width * height * SHADING_DIM;
+    let mut out = Vec::with_capacity(views);
+    let mut buf = vec![0u8; per_view * 4];
+    for k in 0..views {
+        f.read_exact(&mut buf).with_context(|| {
+            format!(
+                "{}: truncated at view {k} (delete it to rebake)",
+                path.display()
+            )
+        })?;
+        out.push(
+            buf.chunks_exact(4)
+                .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+                .collect(),
+        );
+    }
+    Ok(Some(out))
+}
+
+/// Writes the shadings as EXRs in the reference's layout: `diffuse/{k:03}.exr` and
+/// `specular/{k:03}_{c}_{j}.exr` (Fresnel component c ∈ {0,1}, roughness level j ∈ 0..6).
+pub fn write_exrs(dir: &Path, width: usize, height: usize, shadings: &[Vec<f32>]) -> Result<()> {
+    use rayon::prelude::*;
+    shadings
+        .par_iter()
+        .enumerate()
+        .try_for_each(|(k, s)| -> Result<()> {
+            let channel = |off: usize| {
+                let data = (0..width * height)
+                    .flat_map(|p| s[p * SHADING_DIM + off..p * SHADING_DIM + off + 3].to_vec())
+                    .collect();
+                Image::from_data(width, height, 3, data)
+            };
+            channel(0).write_exr(&dir.join("diffuse").join(format!("{k:03}.exr")))?;
+            for c in 0..2 {
+                for j in 0..6 {
+                    channel(3 + 18 * c + 3 * j)
+                        .write_exr(&dir.join("specular").join(format!("{k:03}_{c}_{j}.exr")))?;
+                }
+            }
+            Ok(())
+        })
+}
+
+/// Writes an RGB image as an 8-bit PNG of clip(x·scale, 0, 1)^(1/2.2), atomically.
+pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32], scale: f32) -> Result<()> {
+    let bytes: Vec<u8> = rgb
+        .iter()
+        .map(|&x| (crate::metrics::gamma(x * scale) * 255.0 + 0.5) as u8)
+        .collect();
+    write_atomic(path, |tmp| {
+        image::save_buffer_with_format(
+            tmp,
+            &bytes,
+            width as u32,
+            height as u32,
+            image::ColorType::Rgb8,
+            image::ImageFormat::Png,
+        )
+        .map_err(|e| e.to_string())
+    })?;
+    Ok(())
+}
