@@ -5,6 +5,7 @@
 
 pub mod accel;
 pub mod bake;
+pub mod emitters;
 pub mod filter;
 pub mod lightfield;
 pub mod raycast;

@@ -45,6 +45,30 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The pipeline: bake (cached) → stage 2 → emitters → maps → metrics.
+    Run {
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Backend: flex, ndarray or wgpu (overrides the config).
+        #[arg(long)]
+        backend: Option<BackendKind>,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// No progress bars; print metrics.json to stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Recompute the metrics from the maps a previous `run` saved.
+    Eval {
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Print the default configuration (the reference constants) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
@@ -111,6 +135,24 @@ fn main() {
             }
             Ok(())
         }),
+        Cmd::Run {
+            scene,
+            out,
+            config,
+            backend,
+            seed,
+            json,
+        } => load_config(config.as_deref(), seed).and_then(|mut cfg| {
+            if let Some(b) = backend {
+                cfg.backend = b;
+            }
+            let r = fipt_train::run_cmd::run(&scene, &out, &cfg, json)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            }
+            Ok(())
+        }),
+        Cmd::Eval { scene, out } => fipt_train::run_cmd::eval(&scene, &out).map(|_| ()),
         Cmd::DefaultConfig => serde_json::to_string_pretty(&fipt_train::config::Config::default())
             .map(|s| println!("{s}"))
             .map_err(Into::into),

@@ -347,3 +347,24 @@ impl Trainer {
         out
     }
 }
+
+impl Trainer {
+    /// Saves the trained fields: the networks as a burn record (`fields.bpk`) and the hash
+    /// table as raw little-endian f32 (`hashgrid.bin`), each written to a temporary name first.
+    pub fn save(&self, dir: &std::path::Path) -> Result<(), String> {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let tmp = dir.join("fields.tmp.bpk");
+        self.nets
+            .clone()
+            .save_file(&tmp)
+            .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
+        std::fs::rename(&tmp, dir.join("fields.bpk")).map_err(|e| e.to_string())?;
+        let bytes: Vec<u8> = self
+            .grid
+            .table
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        crate::io::write_bytes_atomic(&dir.join("hashgrid.bin"), &bytes).map_err(|e| e.to_string())
+    }
+}
