@@ -11,9 +11,7 @@
 use crate::accel::Accel;
 use crate::lightfield::LightField;
 use crate::raycast::ViewHits;
-use fipt_core::brdf::{
-    Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_ggx_h, specular_weights,
-};
+use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
 use fipt_core::rng::Rng;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -84,13 +82,11 @@ impl Baker<'_> {
             let (mut s0, mut s1) = (Vec3::ZERO, Vec3::ZERO);
             let spp = self.samples.specular[j];
             for _ in 0..spp {
-                let h = sample_ggx_h(rng.next_f32(), rng.next_f32(), sigma);
-                let vh = wo_l.dot(h);
-                let wi = 2.0 * vh * h - wo_l;
-                if wi.z <= 0.0 || vh <= 0.0 {
+                let Some((wi, g0, g1)) =
+                    sample_specular(wo_l, sigma, rng.next_f32(), rng.next_f32())
+                else {
                     continue;
-                }
-                let (g0, g1) = specular_weights(wo_l.z, wi.z, h.z, vh, sigma);
+                };
                 let l = radiance_along(self.accel, self.lf, x, frame.to_world(wi).normalize());
                 s0 += l * g0;
                 s1 += l * g1;

@@ -7,7 +7,7 @@
 use anyhow::Result;
 use fipt_bake::ViewHits;
 use fipt_bake::lightfield::SceneBox;
-use fipt_core::brdf::{Frame, reflectances, sample_ggx_h, specular_weights};
+use fipt_core::brdf::{Frame, reflectances, sample_specular};
 use fipt_core::model::Trainer;
 use fipt_core::rng::Rng;
 use fipt_core::scene::{Image, MapKind};
@@ -42,15 +42,10 @@ pub fn albedo_mc(
     let wo_l = frame.to_local(wo);
     let (mut s0, mut s1) = (0.0f32, 0.0f32);
     for _ in 0..samples {
-        let h = sample_ggx_h(rng.next_f32(), rng.next_f32(), sigma);
-        let vh = wo_l.dot(h);
-        let wi = 2.0 * vh * h - wo_l;
-        if wi.z <= 0.0 || vh <= 0.0 {
-            continue;
+        if let Some((_, g0, g1)) = sample_specular(wo_l, sigma, rng.next_f32(), rng.next_f32()) {
+            s0 += g0;
+            s1 += g1;
         }
-        let (g0, g1) = specular_weights(wo_l.z, wi.z, h.z, vh, sigma);
-        s0 += g0;
-        s1 += g1;
     }
     let inv = 1.0 / samples.max(1) as f32;
     kd + ks * (s0 * inv) + Vec3::splat(s1 * inv)

@@ -54,3 +54,23 @@ pub fn factorised_render(kd: [f32; 3], ks: [f32; 3], sigma: f32, shading: &[f32]
     }
     out
 }
+
+/// One GGX-sampled reflection at roughness σ in the local frame (ω_o = `wo`, z = normal):
+/// returns (ω_i, g0, g1) with the specular weights of `specular_weights`, or None when the
+/// sampled direction is below the horizon (the sample then counts with weight zero).
+#[inline]
+pub fn sample_specular(
+    wo: glam::Vec3,
+    sigma: f32,
+    u1: f32,
+    u2: f32,
+) -> Option<(glam::Vec3, f32, f32)> {
+    let h = sample_ggx_h(u1, u2, sigma);
+    let vh = wo.dot(h);
+    let wi = 2.0 * vh * h - wo;
+    if wi.z <= 0.0 || vh <= 0.0 {
+        return None;
+    }
+    let (g0, g1) = specular_weights(wo.z, wi.z, h.z, vh, sigma);
+    Some((wi, g0, g1))
+}
