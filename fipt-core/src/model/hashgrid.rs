@@ -213,25 +213,45 @@ impl HashGrid {
             .zip(self.levels.par_iter())
             .enumerate()
             .map(|(l, ((gv, mark), level))| {
-                let mut t = Vec::new();
-                for (p, &x) in xs.iter().enumerate() {
-                    let c = cell(level, x);
-                    let go = &grad_out[p * nl * nf + l * nf..p * nl * nf + (l + 1) * nf];
-                    for k in 0..8 {
-                        let e = c.idx[k] as usize;
-                        if mark[e] != stamp {
-                            mark[e] = stamp;
-                            t.push((level.offset + e) as u32);
-                        }
-                        for f in 0..nf {
-                            gv[e * nf + f] += c.w[k] * go[f];
-                        }
-                    }
-                }
-                t
+                scatter_level(level, l, nl, nf, xs, grad_out, gv, mark, stamp)
             })
             .collect();
         grad.touched = touched;
+    }
+
+    /// `backward_table` followed by `TableAdam::step`, fused per level: each level's gradient
+    /// is scattered and applied while its part of the table is still in cache.
+    pub fn backward_adam(
+        &mut self,
+        xs: &[[f32; 3]],
+        grad_out: &[f32],
+        grad: &mut TableGrad,
+        adam: &mut TableAdam,
+        lr: f32,
+    ) {
+        let (nl, nf) = (self.levels.len(), self.features);
+        assert_eq!(grad_out.len(), xs.len() * nl * nf);
+        grad.step += 1;
+        let stamp = grad.step;
+        let coef = adam.advance(lr);
+        let levels = self.levels.clone();
+        let g_l = split_levels(&levels, nf, &mut grad.values);
+        let k_l = split_levels(&levels, 1, &mut grad.mark);
+        let p_l = split_levels(&levels, nf, &mut self.table);
+        let m_l = split_levels(&levels, nf, &mut adam.m);
+        let v_l = split_levels(&levels, nf, &mut adam.v);
+        g_l.into_par_iter()
+            .zip(k_l)
+            .zip(p_l)
+            .zip(m_l)
+            .zip(v_l)
+            .zip(levels.par_iter())
+            .enumerate()
+            .for_each(|(l, (((((gv, mark), p), m), v), level))| {
+                let list = scatter_level(level, l, nl, nf, xs, grad_out, gv, mark, stamp);
+                adam_level(&coef, level, nf, &list, p, m, v, gv);
+            });
+        grad.touched.clear();
     }
 
     /// d loss / d x for the output gradient (`n × levels·features`), through the trilinear
@@ -332,10 +352,7 @@ impl TableAdam {
 
     /// One Adam step on the touched entries; clears the gradient.
     pub fn step(&mut self, grid: &mut HashGrid, grad: &mut TableGrad, lr: f32) {
-        self.t += 1;
-        let (b1, b2, eps) = (self.beta1, self.beta2, self.eps);
-        let c1 = 1.0 - b1.powi(self.t);
-        let c2 = 1.0 - b2.powi(self.t);
+        let coef = self.advance(lr);
         let nf = grid.features;
         let levels = grid.levels.clone();
         let p_l = split_levels(&levels, nf, &mut grid.table);
@@ -350,17 +367,86 @@ impl TableAdam {
             .zip(levels.par_iter())
             .zip(touched.par_iter())
             .for_each(|(((((p, m), v), g), level), list)| {
-                for &e in list {
-                    let base = (e as usize - level.offset) * nf;
-                    for i in base..base + nf {
-                        let gi = g[i];
-                        m[i] = b1 * m[i] + (1.0 - b1) * gi;
-                        v[i] = b2 * v[i] + (1.0 - b2) * gi * gi;
-                        p[i] -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
-                        g[i] = 0.0;
-                    }
-                }
+                adam_level(&coef, level, nf, list, p, m, v, g)
             });
+    }
+
+    /// Counts a step and returns its constants.
+    fn advance(&mut self, lr: f32) -> AdamCoef {
+        self.t += 1;
+        AdamCoef {
+            b1: self.beta1,
+            b2: self.beta2,
+            eps: self.eps,
+            c1: 1.0 - self.beta1.powi(self.t),
+            c2: 1.0 - self.beta2.powi(self.t),
+            lr,
+        }
+    }
+}
+
+/// Constants of one Adam step.
+struct AdamCoef {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    c1: f32,
+    c2: f32,
+    lr: f32,
+}
+
+/// Scatters one level's share of the output gradient; returns its touched entries (global).
+#[allow(clippy::too_many_arguments)]
+fn scatter_level(
+    level: &Level,
+    l: usize,
+    nl: usize,
+    nf: usize,
+    xs: &[[f32; 3]],
+    grad_out: &[f32],
+    gv: &mut [f32],
+    mark: &mut [u32],
+    stamp: u32,
+) -> Vec<u32> {
+    let mut t = Vec::new();
+    for (p, &x) in xs.iter().enumerate() {
+        let c = cell(level, x);
+        let go = &grad_out[p * nl * nf + l * nf..p * nl * nf + (l + 1) * nf];
+        for k in 0..8 {
+            let e = c.idx[k] as usize;
+            if mark[e] != stamp {
+                mark[e] = stamp;
+                t.push((level.offset + e) as u32);
+            }
+            for f in 0..nf {
+                gv[e * nf + f] += c.w[k] * go[f];
+            }
+        }
+    }
+    t
+}
+
+/// Adam on one level's touched entries; zeroes their gradient.
+#[allow(clippy::too_many_arguments)]
+fn adam_level(
+    c: &AdamCoef,
+    level: &Level,
+    nf: usize,
+    list: &[u32],
+    p: &mut [f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    g: &mut [f32],
+) {
+    for &e in list {
+        let base = (e as usize - level.offset) * nf;
+        for i in base..base + nf {
+            let gi = g[i];
+            m[i] = c.b1 * m[i] + (1.0 - c.b1) * gi;
+            v[i] = c.b2 * v[i] + (1.0 - c.b2) * gi * gi;
+            p[i] -= c.lr * (m[i] / c.c1) / ((v[i] / c.c2).sqrt() + c.eps);
+            g[i] = 0.0;
+        }
     }
 }
 
@@ -486,6 +572,29 @@ mod tests {
             }
         }
         assert!(checked > 60, "only {checked} checks");
+    }
+
+    #[test]
+    fn fused_backward_adam_equals_separate_passes() {
+        let mut a = small();
+        let mut b = a.clone();
+        let mut r = Rng::new(8, 8);
+        let (mut ga, mut gb) = (TableGrad::new(&a), TableGrad::new(&b));
+        let (mut aa, mut ab) = (
+            TableAdam::new(&a, 0.9, 0.99, 1e-8),
+            TableAdam::new(&b, 0.9, 0.99, 1e-8),
+        );
+        for step in 0..3 {
+            let xs = points(30, 10 + step);
+            let go: Vec<f32> = (0..xs.len() * a.output_dim())
+                .map(|_| r.next_f32() - 0.5)
+                .collect();
+            a.backward_table(&xs, &go, &mut ga);
+            aa.step(&mut a, &mut ga, 1e-2);
+            b.backward_adam(&xs, &go, &mut gb, &mut ab, 1e-2);
+        }
+        assert_eq!(a.table, b.table);
+        assert!(gb.values.iter().all(|v| *v == 0.0));
     }
 
     #[test]

@@ -224,10 +224,13 @@ impl Trainer {
             .try_into_vec_as::<f32>()
             .expect("f32 gradient");
         let t3 = Instant::now();
-        self.grid
-            .backward_table(&batch.x_unit, &g_enc, &mut self.grid_grad);
-        self.grid_adam
-            .step(&mut self.grid, &mut self.grid_grad, self.cfg.lr as f32);
+        self.grid.backward_adam(
+            &batch.x_unit,
+            &g_enc,
+            &mut self.grid_grad,
+            &mut self.grid_adam,
+            self.cfg.lr as f32,
+        );
         let t4 = Instant::now();
         let gp = GradientsParams::from_grads(grads, &self.nets);
         self.nets = self.optim.step(self.cfg.lr, self.nets.clone(), gp);
