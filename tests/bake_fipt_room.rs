@@ -25,7 +25,12 @@ fn gt_render_of_baked_shadings_matches_images() {
     };
     let ds = Dataset::load(&scene_dir(), &opts).unwrap();
     let accel = Accel::build(&ds.mesh);
-    let cfg = BakeConfig::default();
+    // The bake section of configs/default.json (the reference sample counts and the filter).
+    let cfg: BakeConfig = fipt_train::config::Config::load(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../configs/default.json"),
+    )
+    .unwrap()
+    .bake;
     let baked = stage1::bake(&accel, &ds.mesh, &ds.train, &cfg, false);
     let scores: Vec<_> = ds
         .train

@@ -274,7 +274,11 @@ pub fn step(
             );
         }
     }
-    let r = json!({"bench": "step", "seg_loss": "part", "results": rows,
+    let encoding = bench_encoding(backends[0], batch, steps.min(5))?;
+    if !as_json {
+        println!("encoding {encoding}");
+    }
+    let r = json!({"bench": "step", "seg_loss": "part", "results": rows, "encoding": encoding,
         "reference": {"pytorch_tcnn_s": 0.310, "jax_s": 0.145}});
     if as_json {
         println!("{}", serde_json::to_string_pretty(&r)?);
@@ -362,4 +366,47 @@ pub fn bake(as_json: bool, reps: usize) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The hash-grid encoding alone (forward + backward to the table) at the reference size: the
+/// fused host op against the plain tensor-op formulation, in the same process.
+fn bench_encoding(
+    backend: fipt_core::model::BackendKind,
+    batch: usize,
+    reps: usize,
+) -> Result<Value> {
+    use fipt_core::model::HashGridConfig;
+    use fipt_core::model::hashgrid::TableGrad;
+    use fipt_core::model::hashgrid_tensor::{encode_tensor, table_tensor};
+    let grid = HashGridConfig::new().init(1);
+    let b = synthetic_batch(batch, 5);
+    let go: Vec<f32> = vec![1e-3; batch * grid.output_dim()];
+    let mut tg = TableGrad::new(&grid);
+    let mut fused = Vec::new();
+    for _ in 0..reps + 1 {
+        let t = Instant::now();
+        let e = grid.encode(&b.x_unit);
+        grid.backward_table(&b.x_unit, &go, &mut tg);
+        tg.clear(grid.features);
+        std::hint::black_box(e);
+        fused.push(t.elapsed().as_secs_f64());
+    }
+    let dev = backend.device().map_err(anyhow::Error::msg)?.autodiff();
+    let table = table_tensor(&grid, &dev).require_grad();
+    let mut tensor = Vec::new();
+    for _ in 0..reps + 1 {
+        let t = Instant::now();
+        let enc = encode_tensor(&grid, table.clone(), &b.x_unit);
+        let g = enc.sum().backward();
+        let gt = table.grad(&g).expect("table gradient");
+        std::hint::black_box(gt.try_into_vec_as::<f32>().ok());
+        tensor.push(t.elapsed().as_secs_f64());
+    }
+    fused.remove(0);
+    tensor.remove(0);
+    let (f, t) = (median(fused), median(tensor));
+    Ok(
+        json!({"backend": backend.name(), "batch": batch, "levels": grid.levels.len(),
+        "fused_host_s": f, "tensor_ops_s": t, "speedup": t / f}),
+    )
 }

@@ -167,6 +167,12 @@ fn split_levels<'a, T>(
 }
 
 impl HashGrid {
+    /// Local entry indices and trilinear weights of the 8 corners around `x` on `level`.
+    pub fn cell_corners(&self, level: &Level, x: [f32; 3]) -> ([u32; 8], [f32; 8]) {
+        let c = cell(level, x);
+        (c.idx, c.w)
+    }
+
     pub fn num_params(&self) -> usize {
         self.table.len()
     }

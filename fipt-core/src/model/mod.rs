@@ -7,6 +7,7 @@ pub mod backend;
 pub mod brdf;
 pub mod fields;
 pub mod hashgrid;
+pub mod hashgrid_tensor;
 pub mod loss;
 pub mod pe;
 pub mod render;
