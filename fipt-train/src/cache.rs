@@ -171,3 +171,41 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32], scale: f
     })?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cache_round_trip_stale_key_and_truncation() {
+        let dir = std::env::temp_dir().join(format!("fipt-cache-{}", std::process::id()));
+        let p = dir.join("shadings.bin");
+        let s: Vec<Vec<f32>> = (0..2)
+            .map(|k| {
+                (0..4 * 3 * SHADING_DIM)
+                    .map(|i| (i + k) as f32 * 0.5)
+                    .collect()
+            })
+            .collect();
+        save(&p, 42, 4, 3, &s).unwrap();
+        assert_eq!(load(&p, 42, 2, 4, 3).unwrap(), Some(s.clone()));
+        assert_eq!(load(&p, 43, 2, 4, 3).unwrap(), None, "another key is stale");
+        assert_eq!(
+            load(&p, 42, 3, 4, 3).unwrap(),
+            None,
+            "another view count is stale"
+        );
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() - 10]).unwrap();
+        let e = load(&p, 42, 2, 4, 3).unwrap_err().to_string();
+        assert!(e.contains("shadings.bin") && e.contains("truncated"), "{e}");
+        std::fs::write(&p, b"garbage").unwrap();
+        assert!(
+            load(&p, 42, 2, 4, 3)
+                .unwrap_err()
+                .to_string()
+                .contains("not a fipt shading cache")
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
