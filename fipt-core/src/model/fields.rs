@@ -18,11 +18,18 @@ pub struct Mlp {
 }
 
 impl Mlp {
+    /// Layers `dims[0] → dims[1] → …`, with biases.
     pub fn new(dims: &[usize], device: &Device) -> Self {
+        Self::with_bias(dims, true, device)
+    }
+
+    /// Layers `dims[0] → dims[1] → …`; `bias = false` gives tiny-cuda-nn's FullyFusedMLP (no
+    /// biases), which the reference material field uses.
+    pub fn with_bias(dims: &[usize], bias: bool, device: &Device) -> Self {
         Self {
             layers: dims
                 .windows(2)
-                .map(|w| LinearConfig::new(w[0], w[1]).init(device))
+                .map(|w| LinearConfig::new(w[0], w[1]).with_bias(bias).init(device))
                 .collect(),
         }
     }
@@ -73,9 +80,12 @@ impl MaterialFieldConfig {
         let mut dims = vec![grid.output_dim()];
         dims.extend(std::iter::repeat_n(self.hidden, self.hidden_layers));
         dims.push(5);
+        // No biases, as tcnn's FullyFusedMLP: a shared output bias would let the regulariser
+        // and the majority of (diffuse) pixels saturate m → 0 and σ → 1 everywhere at once,
+        // after which the sigmoid gives rare metal/glossy pixels no gradient.
         MaterialField {
             grid,
-            mlp: Mlp::new(&dims, device),
+            mlp: Mlp::with_bias(&dims, false, device),
         }
     }
 }
