@@ -3,7 +3,7 @@
 
 use fipt_bake::Accel;
 use fipt_bake::bake::BakeConfig;
-use fipt_core::scene::{Dataset, LoadOptions, MapKind};
+use fipt_core::scene::{Dataset, LoadOptions};
 use fipt_train::{metrics, stage1};
 use std::path::PathBuf;
 
@@ -14,13 +14,7 @@ fn scene_dir() -> PathBuf {
 #[test]
 fn gt_render_of_baked_shadings_matches_images() {
     let opts = LoadOptions {
-        maps: vec![
-            MapKind::DiffCol,
-            MapKind::BaseColor,
-            MapKind::Metallic,
-            MapKind::Roughness,
-            MapKind::Emit,
-        ],
+        maps: metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
     };
     let ds = Dataset::load(&scene_dir(), &opts).unwrap();

@@ -7,7 +7,7 @@ use crate::config::Config;
 use crate::{cache, metrics, stage1};
 use anyhow::Result;
 use fipt_bake::Accel;
-use fipt_core::scene::{Dataset, LoadOptions, MapKind};
+use fipt_core::scene::{Dataset, LoadOptions};
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
@@ -15,13 +15,7 @@ use std::time::Instant;
 pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_json::Value> {
     let t0 = Instant::now();
     let opts = LoadOptions {
-        maps: vec![
-            MapKind::DiffCol,
-            MapKind::BaseColor,
-            MapKind::Metallic,
-            MapKind::Roughness,
-            MapKind::Emit,
-        ],
+        maps: metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
     };
     let ds = Dataset::load(scene, &opts)?;

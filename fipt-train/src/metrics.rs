@@ -27,6 +27,15 @@ pub fn psnr_gamma(a: &[f32], b: &[f32], mask: impl Fn(usize) -> bool) -> Option<
     (n > 0).then(|| -10.0 * (se / n as f64).max(1e-12).log10())
 }
 
+/// The ground-truth maps `gt_render` needs.
+pub const GT_RENDER_MAPS: [MapKind; 5] = [
+    MapKind::DiffCol,
+    MapKind::BaseColor,
+    MapKind::Metallic,
+    MapKind::Roughness,
+    MapKind::Emit,
+];
+
 /// PSNR of the factorised render with the ground-truth materials against `Image`.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct GtRenderPsnr {
