@@ -16,20 +16,11 @@ use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
 
+/// The maps FIPT reads, plus BaseColor and Metallic for the per-part table.
 fn load_opts() -> LoadOptions {
-    LoadOptions {
-        maps: vec![
-            MapKind::DiffCol,
-            MapKind::Roughness,
-            MapKind::Emit,
-            MapKind::IndexMA,
-            MapKind::Segmentation,
-            MapKind::Albedo,
-            MapKind::BaseColor,
-            MapKind::Metallic,
-        ],
-        val: true,
-    }
+    let mut maps = MapKind::FIPT.to_vec();
+    maps.extend([MapKind::BaseColor, MapKind::Metallic]);
+    LoadOptions { maps, val: true }
 }
 
 fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {
