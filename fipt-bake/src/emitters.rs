@@ -3,6 +3,12 @@
 //! per-channel (lower) median of the photo pixels whose pixel-centre ray first hit it; emitters
 //! never seen with positive radiance are dropped.
 //!
+//! One addition to the reference: a candidate must also *emit* what its photos show. Where the
+//! trained BRDF and the baked shadings already explain the photo pixels of a triangle (the
+//! median share of the observed radiance left unexplained is below `min_unexplained`), the mask
+//! only spilled onto it — a smooth PE mask does next to a lamp — and the triangle is rejected.
+//! With `min_unexplained = 0` this is the reference rule.
+//!
 //! Owns: per-triangle sampling, the decision and the radiance statistics. Must not touch: the
 //! mask itself (it is queried through a closure, a batch at a time).
 
@@ -24,6 +30,41 @@ pub struct Emitter {
     pub mean_alpha: f32,
     /// Photo pixels that saw the triangle.
     pub pixels: u32,
+    /// Median over those pixels of the share of the observed radiance that reflection (the
+    /// trained BRDF on the baked shadings) leaves unexplained; 1 where no prediction was given.
+    pub unexplained: f32,
+}
+
+/// One training view as emitter extraction sees it.
+#[derive(Clone, Copy, Debug)]
+pub struct ObservedView<'a> {
+    pub hits: &'a ViewHits,
+    /// HDR photo, 3 floats per pixel.
+    pub image: &'a [f32],
+    /// Predicted reflected radiance, 3 floats per pixel (zeros where nothing is predicted);
+    /// empty when unknown.
+    pub reflected: &'a [f32],
+}
+
+/// The rule's parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct ExtractConfig {
+    pub samples_per_triangle: usize,
+    /// Mean α above which a triangle is a candidate (reference: 0.01).
+    pub threshold: f32,
+    /// Minimum median unexplained share of a candidate's observed radiance.
+    pub min_unexplained: f32,
+    pub seed: u64,
+}
+
+/// Share of observed radiance `gt` that `reflected` does not explain, in [0, 1].
+fn unexplained_share(gt: [f32; 3], reflected: [f32; 3]) -> f32 {
+    let (g, r) = (gt.iter().sum::<f32>(), reflected.iter().sum::<f32>());
+    if g <= 0.0 {
+        0.0
+    } else {
+        (1.0 - r.max(0.0) / g).clamp(0.0, 1.0)
+    }
 }
 
 /// Uniform point `k` of `n` on triangle `t` (b0 = 1 − √u, b1 = √u·v), deterministic per seed.
@@ -42,17 +83,15 @@ pub fn triangle_samples(mesh: &Mesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
     out
 }
 
-/// Extracts the emitters. `alpha` maps world points to mask values (called in chunks);
-/// `views` pairs each training view's hits with its HDR image (3 floats per pixel).
+/// Extracts the emitters. `alpha` maps world points to mask values (called in chunks).
 pub fn extract(
     mesh: &Mesh,
     alpha: &mut dyn FnMut(&[[f32; 3]]) -> Vec<f32>,
-    samples_per_triangle: usize,
-    threshold: f32,
-    views: &[(&ViewHits, &[f32])],
-    seed: u64,
+    views: &[ObservedView],
+    cfg: &ExtractConfig,
 ) -> Vec<Emitter> {
-    let n = samples_per_triangle.max(1);
+    let (threshold, seed) = (cfg.threshold, cfg.seed);
+    let n = cfg.samples_per_triangle.max(1);
     // Chunks of whole triangles keep memory bounded on big meshes.
     let tris_per_chunk = (1 << 18) / n + 1;
     let mut mean_alpha = vec![0f32; mesh.num_triangles()];
@@ -64,15 +103,22 @@ pub fn extract(
         }
     }
     let candidate: Vec<bool> = mean_alpha.iter().map(|&a| a > threshold).collect();
-    let mut seen: std::collections::HashMap<u32, Vec<[f32; 3]>> = Default::default();
-    for (h, img) in views {
-        for (p, &t) in h.tri.iter().enumerate() {
+    // Per candidate: observed radiance and unexplained share of each pixel that saw it.
+    type Seen = (Vec<[f32; 3]>, Vec<f32>);
+    let mut seen: std::collections::HashMap<u32, Seen> = Default::default();
+    for v in views {
+        for (p, &t) in v.hits.tri.iter().enumerate() {
             if t >= 0 && candidate[t as usize] {
-                seen.entry(t as u32).or_default().push([
-                    img[3 * p],
-                    img[3 * p + 1],
-                    img[3 * p + 2],
-                ]);
+                let gt = [v.image[3 * p], v.image[3 * p + 1], v.image[3 * p + 2]];
+                let share = if v.reflected.is_empty() {
+                    1.0
+                } else {
+                    let r = &v.reflected[3 * p..3 * p + 3];
+                    unexplained_share(gt, [r[0], r[1], r[2]])
+                };
+                let e = seen.entry(t as u32).or_default();
+                e.0.push(gt);
+                e.1.push(share);
             }
         }
     }
@@ -81,9 +127,14 @@ pub fn extract(
         if !candidate[t] {
             continue;
         }
-        let Some(px) = seen.get(&(t as u32)) else {
+        let Some((px, shares)) = seen.get_mut(&(t as u32)) else {
             continue;
         };
+        shares.sort_by(f32::total_cmp);
+        let unexplained = shares[(shares.len() - 1) / 2];
+        if unexplained < cfg.min_unexplained {
+            continue;
+        }
         let mut radiance = [0f32; 3];
         for (c, r) in radiance.iter_mut().enumerate() {
             let mut v: Vec<f32> = px.iter().map(|x| x[c]).collect();
@@ -102,6 +153,7 @@ pub fn extract(
             vertices: [a.to_array(), b.to_array(), c.to_array()],
             mean_alpha: mean_alpha[t],
             pixels: px.len() as u32,
+            unexplained,
         });
     }
     out
@@ -138,12 +190,33 @@ mod tests {
         let img = [
             1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 2.0, 2.0, 2.0, 3.0, 3.0, 3.0, 9.0, 9.0, 9.0,
         ];
-        let e = extract(&mesh, &mut alpha, 10, 0.01, &[(&hits, &img)], 0);
+        let cfg = ExtractConfig {
+            samples_per_triangle: 10,
+            threshold: 0.01,
+            min_unexplained: 0.5,
+            seed: 0,
+        };
+        let view = |reflected| ObservedView {
+            hits: &hits,
+            image: &img,
+            reflected,
+        };
+        let e = extract(&mesh, &mut alpha, &[view(&[])], &cfg);
         // Triangle 1 is masked but never seen: dropped. Triangle 2 is seen but not masked.
         assert_eq!(e.len(), 1);
         assert_eq!(e[0].triangle, 0);
         assert_eq!(e[0].radiance, [2.0; 3]); // lower median of 1, 2, 3, 4
         assert!((e[0].area - 0.5).abs() < 1e-6);
         assert_eq!(e[0].pixels, 4);
+        assert_eq!(e[0].unexplained, 1.0);
+        // Reflection explains 90 % of every pixel: the mask only spilled here, no emitter.
+        let most = img.map(|v| 0.9 * v);
+        let e = extract(&mesh, &mut alpha, &[view(&most)], &cfg);
+        assert!(e.is_empty());
+        // Reflection explains a tenth of each pixel: an emitter, unexplained share 0.9.
+        let little = img.map(|v| 0.1 * v);
+        let e = extract(&mesh, &mut alpha, &[view(&little)], &cfg);
+        assert_eq!(e.len(), 1);
+        assert!((e[0].unexplained - 0.9).abs() < 1e-6);
     }
 }

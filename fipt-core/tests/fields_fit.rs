@@ -34,7 +34,7 @@ fn hash_grid_field_fits_smooth_rgb_function() {
         .with_base_resolution(4.0)
         .with_per_level_scale(1.45)
         .init(1);
-    let mut mlp = Mlp::new(&[grid.output_dim(), 64, 64, 3], &dev);
+    let mut mlp = Mlp::new(&[grid.output_dim(), 64, 64, 3], 1, &dev);
     let mut optim = AdamConfig::new().with_epsilon(1e-15).init();
     let mut tadam = TableAdam::new(&grid, 0.9, 0.999, 1e-15);
     let mut tgrad = TableGrad::new(&grid);
@@ -84,7 +84,7 @@ fn hash_grid_field_fits_smooth_rgb_function() {
 fn emission_mask_learns_a_box() {
     let dev = Device::flex().autodiff();
     dev.seed(3);
-    let mut mask = EmissionMaskConfig::new().init(&dev);
+    let mut mask = EmissionMaskConfig::new().init(&dev, 3);
     let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
     // A lamp-sized box in a 5 × 2.7 × 4 m room (world coordinates, as FIPT feeds them).
     let (lo, hi) = ([1.5f32, 0.8, 1.0], [2.3f32, 1.4, 1.6]);

@@ -48,6 +48,23 @@ pub enum SegChoice {
     None,
 }
 
+/// `"auto"`, `"none"` or a number.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum MaxResolution {
+    Keyword(ResolutionKeyword),
+    Fixed(f64),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ResolutionKeyword {
+    /// One grid cell per median pixel footprint of the training views.
+    Auto,
+    /// No cap: all `levels` levels.
+    None,
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GridSection {
@@ -56,6 +73,29 @@ pub struct GridSection {
     pub log2_table: u32,
     pub base_resolution: f64,
     pub per_level_scale: f64,
+    /// Finest grid resolution (cells per unit-cube side) kept: levels finer than this are
+    /// dropped. `"auto"` puts it at one cell per median pixel footprint: finer levels see at
+    /// most one pixel per cell, so base colour there can absorb each pixel's residual (shading
+    /// noise, specular) and nothing ties a point's σ and m across views.
+    pub max_resolution: MaxResolution,
+}
+
+impl GridSection {
+    /// The levels kept for a scene whose median pixel footprint is `footprint` (unit-cube
+    /// units): those with base·scale^l ≤ the maximum resolution, at least one.
+    pub fn levels_for(&self, footprint: f64) -> usize {
+        let max = match self.max_resolution {
+            MaxResolution::Keyword(ResolutionKeyword::None) => return self.levels,
+            MaxResolution::Keyword(ResolutionKeyword::Auto) => 1.0 / footprint,
+            MaxResolution::Fixed(r) => r,
+        };
+        let kept = ((max / self.base_resolution).ln() / self.per_level_scale.ln()).floor() + 1.0;
+        if kept.is_finite() {
+            (kept.max(1.0) as usize).min(self.levels)
+        } else {
+            self.levels
+        }
+    }
 }
 
 impl Default for GridSection {
@@ -67,6 +107,7 @@ impl Default for GridSection {
             log2_table: 19,
             base_resolution: 32.0,
             per_level_scale: 1.3,
+            max_resolution: MaxResolution::Keyword(ResolutionKeyword::Auto),
         }
     }
 }
@@ -114,8 +155,8 @@ impl Default for TrainSection {
 }
 
 impl TrainSection {
-    /// The model's burn config.
-    pub fn model_config(&self) -> TrainConfig {
+    /// The model's burn config, with `levels` hash-grid levels (see `GridSection::levels_for`).
+    pub fn model_config(&self, levels: usize) -> TrainConfig {
         let g = &self.grid;
         TrainConfig::new()
             .with_lr(self.lr)
@@ -128,7 +169,7 @@ impl TrainSection {
                 MaterialFieldConfig::new()
                     .with_grid(
                         HashGridConfig::new()
-                            .with_levels(g.levels)
+                            .with_levels(levels)
                             .with_features(g.features)
                             .with_log2_table(g.log2_table)
                             .with_base_resolution(g.base_resolution)
@@ -162,7 +203,11 @@ impl TrainSection {
 #[serde(deny_unknown_fields, default)]
 pub struct EmitterSection {
     pub samples_per_triangle: usize,
+    /// Mean α above which a triangle is a candidate (reference: 0.01).
     pub threshold: f32,
+    /// A candidate must leave at least this median share of its observed radiance unexplained
+    /// by reflection (0 = the reference rule; see `fipt_bake::emitters`).
+    pub min_unexplained: f32,
 }
 
 impl Default for EmitterSection {
@@ -170,6 +215,7 @@ impl Default for EmitterSection {
         Self {
             samples_per_triangle: 100,
             threshold: 0.01,
+            min_unexplained: 0.5,
         }
     }
 }
@@ -286,6 +332,13 @@ impl Config {
             "train.grid.per_level_scale",
             "must be >= 1",
         )?;
+        if let MaxResolution::Fixed(r) = g.max_resolution {
+            check(
+                r.is_finite() && r >= 1.0,
+                "train.grid.max_resolution",
+                "must be \"auto\", \"none\" or a number >= 1",
+            )?;
+        }
         check(
             t.mlp_hidden >= 1 && t.mlp_layers >= 1,
             "train.mlp_hidden",
@@ -305,6 +358,11 @@ impl Config {
             (0.0..1.0).contains(&self.emitters.threshold),
             "emitters.threshold",
             "must be in [0, 1)",
+        )?;
+        check(
+            (0.0..=1.0).contains(&self.emitters.min_unexplained),
+            "emitters.min_unexplained",
+            "must be in [0, 1]",
         )?;
         check(
             self.maps.albedo_samples >= 1,

@@ -8,7 +8,7 @@ use crate::eval::{self, Metrics, PartRow};
 use crate::maps::{ViewMaps, predict_view};
 use crate::{stage1, stage2};
 use anyhow::{Context, Result};
-use fipt_bake::emitters::{self, Emitter};
+use fipt_bake::emitters::{self, Emitter, ExtractConfig, ObservedView};
 use fipt_bake::{Accel, ViewHits};
 use fipt_core::io::{peak_rss_mb, write_bytes_atomic};
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
@@ -111,9 +111,11 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
     let sb = baked.light_field.scene_box;
     let store = stage2::PixelStore::gather(&ds.train, &baked, &sb, mode);
     let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
+    let footprint = stage2::pixel_footprint(&ds.train, &baked.hits, &sb);
+    let grid_levels = cfg.train.grid.levels_for(footprint);
     let (tr, log) = stage2::train(
         &store,
-        cfg.train.model_config(),
+        cfg.train.model_config(grid_levels),
         &device,
         mode,
         cfg.train.epochs,
@@ -121,24 +123,34 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
         cfg.seed,
         !quiet,
     );
+    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
+    let reflected = stage2::reflected(&tr, &store, &sizes);
     drop(store);
     tr.save(&out.join("model")).map_err(anyhow::Error::msg)?;
     times.insert("train_s".into(), json!(t.elapsed().as_secs_f64()));
 
     let t = Instant::now();
-    let views: Vec<(&ViewHits, &[f32])> = baked
+    let views: Vec<ObservedView> = baked
         .hits
         .iter()
         .zip(&ds.train.views)
-        .map(|(h, v)| (h, v.image.data.as_slice()))
+        .zip(&reflected)
+        .map(|((hits, v), r)| ObservedView {
+            hits,
+            image: v.image.data.as_slice(),
+            reflected: r,
+        })
         .collect();
     let em: Vec<Emitter> = emitters::extract(
         &ds.mesh,
         &mut |p| tr.alpha(p),
-        cfg.emitters.samples_per_triangle,
-        cfg.emitters.threshold,
         &views,
-        cfg.seed,
+        &ExtractConfig {
+            samples_per_triangle: cfg.emitters.samples_per_triangle,
+            threshold: cfg.emitters.threshold,
+            min_unexplained: cfg.emitters.min_unexplained,
+            seed: cfg.seed,
+        },
     );
     write_json(&out.join("emitters.json"), &json!({"emitters": em}))?;
     times.insert("emitters_s".into(), json!(t.elapsed().as_secs_f64()));
@@ -178,6 +190,7 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
         "kd_psnr": metrics.kd_psnr, "albedo_psnr": metrics.albedo_psnr, "roughness_psnr": metrics.roughness_psnr,
         "emission_iou": metrics.emission_iou, "emission_log_l2": metrics.emission_log_l2,
         "emitters": em.len(),
+        "grid": json!({"pixel_footprint": footprint, "levels": grid_levels, "steps": tr.steps}),
         "parts": parts,
         "train_log": log,
         "step_profile": tr.profile,

@@ -6,6 +6,8 @@
 use crate::stage1::{Baked, progress_bar};
 use fipt_bake::bake::SHADING_DIM;
 use fipt_bake::lightfield::SceneBox;
+use fipt_bake::raycast::ViewHits;
+use fipt_core::brdf::{factorised_render, reflectances};
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{Batch, LossParts, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
@@ -84,6 +86,44 @@ impl PixelStore {
         }
         out
     }
+}
+
+/// The median pixel footprint of the training views in unit-cube units: over every hit, the
+/// hit distance times the angle one pixel subtends (1/f_x), divided by the scene box's side.
+pub fn pixel_footprint(train: &Split, hits: &[ViewHits], sb: &SceneBox) -> f64 {
+    let mut f: Vec<f32> = train
+        .views
+        .iter()
+        .zip(hits)
+        .flat_map(|(v, h)| {
+            let k = (1.0 / v.camera.fx) as f32;
+            h.t.iter()
+                .zip(&h.tri)
+                .filter(|(_, tri)| **tri >= 0)
+                .map(move |(t, _)| t * k)
+        })
+        .collect();
+    if f.is_empty() {
+        return 1.0;
+    }
+    let mid = f.len() / 2;
+    let (_, m, _) = f.select_nth_unstable_by(mid, f32::total_cmp);
+    *m as f64 / (sb.max - sb.min) as f64
+}
+
+/// The reflected radiance the trained BRDF predicts from the baked shadings at every stored
+/// pixel, scattered back into per-view images (3 floats per pixel, zeros at misses).
+pub fn reflected(tr: &Trainer, store: &PixelStore, pixels_per_view: &[usize]) -> Vec<Vec<f32>> {
+    let mat = tr.material(&store.pixels.x_unit);
+    let mut out: Vec<Vec<f32>> = pixels_per_view.iter().map(|&n| vec![0.0; 3 * n]).collect();
+    for (i, &(k, p)) in store.origin.iter().enumerate() {
+        let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
+        let (kd, ks) = reflectances(a, mat.metallic[i]);
+        let sh = &store.pixels.shadings[i * SHADING_DIM..(i + 1) * SHADING_DIM];
+        let c = factorised_render(kd.to_array(), ks.to_array(), mat.sigma[i], sh);
+        out[k as usize][3 * p as usize..3 * p as usize + 3].copy_from_slice(&c);
+    }
+    out
 }
 
 /// Loss log of a training run: the mean of each part per epoch, and every step's total.

@@ -5,9 +5,10 @@
 
 use super::hashgrid::{HashGrid, HashGridConfig};
 use super::pe::{pe_dim, positional_encoding};
+use crate::rng::Rng;
 use burn::config::Config;
-use burn::module::Module;
-use burn::nn::{Linear, LinearConfig};
+use burn::module::{Module, Param};
+use burn::nn::Linear;
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -17,19 +18,41 @@ pub struct Mlp {
     pub layers: Vec<Linear>,
 }
 
+/// A linear layer `input → output` initialised on the host from `rng` with PyTorch's and
+/// burn's default, U(−k, k) with k = 1/√input for weights and biases. Host initialisation makes
+/// a seed give the same network on every backend.
+pub fn linear(input: usize, output: usize, bias: bool, rng: &mut Rng, device: &Device) -> Linear {
+    let k = 1.0 / (input as f32).sqrt();
+    let mut uniform =
+        |n: usize| -> Vec<f32> { (0..n).map(|_| (2.0 * rng.next_f32() - 1.0) * k).collect() };
+    let w = uniform(input * output);
+    let weight = Param::from_tensor(Tensor::from_data(
+        TensorData::new(w, [input, output]),
+        device,
+    ));
+    let bias = bias.then(|| {
+        Param::from_tensor(Tensor::from_data(
+            TensorData::new(uniform(output), [output]),
+            device,
+        ))
+    });
+    Linear { weight, bias }
+}
+
 impl Mlp {
-    /// Layers `dims[0] → dims[1] → …`, with biases.
-    pub fn new(dims: &[usize], device: &Device) -> Self {
-        Self::with_bias(dims, true, device)
+    /// Layers `dims[0] → dims[1] → …`, with biases, initialised from (`seed`, stream 1).
+    pub fn new(dims: &[usize], seed: u64, device: &Device) -> Self {
+        Self::with_bias(dims, true, seed, device)
     }
 
     /// Layers `dims[0] → dims[1] → …`; `bias = false` gives tiny-cuda-nn's FullyFusedMLP (no
     /// biases), which the reference material field uses.
-    pub fn with_bias(dims: &[usize], bias: bool, device: &Device) -> Self {
+    pub fn with_bias(dims: &[usize], bias: bool, seed: u64, device: &Device) -> Self {
+        let mut rng = Rng::new(seed, 0x31f);
         Self {
             layers: dims
                 .windows(2)
-                .map(|w| LinearConfig::new(w[0], w[1]).with_bias(bias).init(device))
+                .map(|w| linear(w[0], w[1], bias, &mut rng, device))
                 .collect(),
         }
     }
@@ -74,7 +97,7 @@ pub struct MaterialField {
 }
 
 impl MaterialFieldConfig {
-    /// Builds the field; the grid is initialised from `seed`, the MLP from the device's RNG.
+    /// Builds the field; the grid and the MLP are initialised on the host from `seed`.
     pub fn init(&self, device: &Device, seed: u64) -> MaterialField {
         let grid = self.grid.init(seed);
         let mut dims = vec![grid.output_dim()];
@@ -85,7 +108,7 @@ impl MaterialFieldConfig {
         // after which the sigmoid gives rare metal/glossy pixels no gradient.
         MaterialField {
             grid,
-            mlp: Mlp::with_bias(&dims, false, device),
+            mlp: Mlp::with_bias(&dims, false, seed, device),
         }
     }
 }
@@ -143,7 +166,9 @@ pub struct EmissionMask {
 }
 
 impl EmissionMaskConfig {
-    pub fn init(&self, device: &Device) -> EmissionMask {
+    /// Builds the mask, initialised on the host from `seed`.
+    pub fn init(&self, device: &Device, seed: u64) -> EmissionMask {
+        let mut rng = Rng::new(seed, 0xe31);
         let pe = pe_dim(self.freqs);
         let layers = (0..self.depth)
             .map(|i| {
@@ -152,12 +177,12 @@ impl EmissionMaskConfig {
                     i if i == self.skip => self.width + pe,
                     _ => self.width,
                 };
-                LinearConfig::new(input, self.width).init(device)
+                linear(input, self.width, true, &mut rng, device)
             })
             .collect();
         EmissionMask {
             layers,
-            out: LinearConfig::new(self.width, 1).init(device),
+            out: linear(self.width, 1, true, &mut rng, device),
             freqs: self.freqs,
             skip: self.skip,
         }

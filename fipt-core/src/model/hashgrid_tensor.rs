@@ -3,16 +3,13 @@
 //!
 //! It is the baseline the fused host op (`hashgrid`) is measured against, and an independent
 //! check of the fused backward (burn's autodiff differentiates this one). Index ops are chunked
-//! to at most 65,535 indices per call, the limit past which some Vulkan drivers (lavapipe) drop
-//! writes.
+//! (`gather`), the limit past which some Vulkan drivers (lavapipe) drop writes.
 //!
 //! Owns: the tensor formulation. Must not touch: the table layout (owned by `hashgrid`).
 
+use super::gather::select_rows;
 use super::hashgrid::HashGrid;
-use burn::tensor::{Device, Int, Tensor, TensorData};
-
-/// Largest index count per `select` call.
-pub const INDEX_CHUNK: usize = 65_535;
+use burn::tensor::{Device, Tensor, TensorData};
 
 /// Host-side corner indices (global entries) and weights of a batch, in [point, level, corner]
 /// order.
@@ -30,24 +27,12 @@ pub fn corners(grid: &HashGrid, xs: &[[f32; 3]]) -> (Vec<i64>, Vec<f32>) {
     (idx, w)
 }
 
-/// `table` [entries, F] gathered at `idx` in chunks of `INDEX_CHUNK`.
-pub fn select_chunked(table: Tensor<2>, idx: &[i64], device: &Device) -> Tensor<2> {
-    let parts: Vec<Tensor<2>> = idx
-        .chunks(INDEX_CHUNK)
-        .map(|c| {
-            let i = Tensor::<1, Int>::from_data(TensorData::new(c.to_vec(), [c.len()]), device);
-            table.clone().select(0, i)
-        })
-        .collect();
-    Tensor::cat(parts, 0)
-}
-
 /// Encodes `xs` with the table as a tensor `[entries, F]` (differentiable w.r.t. the table).
 pub fn encode_tensor(grid: &HashGrid, table: Tensor<2>, xs: &[[f32; 3]]) -> Tensor<2> {
     let (n, nl, nf) = (xs.len(), grid.levels.len(), grid.features);
     let device = table.device();
     let (idx, w) = corners(grid, xs);
-    let feats = select_chunked(table, &idx, &device).reshape([n, nl, 8, nf]);
+    let feats = select_rows(table, &idx).reshape([n, nl, 8, nf]);
     let w = Tensor::<4>::from_data(TensorData::new(w, [n, nl, 8, 1]), &device);
     (feats * w).sum_dim(2).reshape([n, nl * nf])
 }

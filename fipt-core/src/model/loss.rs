@@ -2,7 +2,8 @@
 //!
 //! Owns: tone mapping and every loss term. Must not touch: which pixels are in a batch.
 
-use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
+use super::gather::{scatter_add, select_1d, select_rows};
+use burn::tensor::{Device, Tensor, TensorData};
 
 /// The sRGB OETF Γ, no clamp: 12.92x for x ≤ 0.0031308, else 1.055·x^(1/2.4) − 0.055.
 pub fn tonemap(x: Tensor<2>) -> Tensor<2> {
@@ -33,6 +34,13 @@ pub fn diffuse_loss(sigma: Tensor<2>, metallic: Tensor<2>, weight: f32) -> Tenso
     (sigma.sub_scalar(1.0).abs().mean() + metallic.mean()).mul_scalar(weight)
 }
 
+/// Mean of `v` per label (`labels` compact in 0..n_labels), gathered back to every pixel.
+fn weighted_label_mean(v: Tensor<1>, w: Tensor<1>, labels: &[i64], n_labels: usize) -> Tensor<1> {
+    let sw = scatter_add(n_labels, labels, w.clone());
+    let swv = scatter_add(n_labels, labels, w * v);
+    select_1d(swv / sw, labels)
+}
+
 /// Eq. 18–19 (part variant): per segment, weighted means of σ and m with weights
 /// w = mean_rgb(specular shading).detach() + 1e-4; L = λ·(mean|m − m̄_s| + mean|σ − σ̄_s|).
 /// `seg` holds compact segment ids 0..n_seg−1. Gradients flow through the means too.
@@ -40,119 +48,127 @@ pub fn part_loss(
     sigma: Tensor<2>,
     metallic: Tensor<2>,
     spec: Tensor<2>,
-    seg: Tensor<1, Int>,
+    seg: &[i64],
     n_seg: usize,
     weight: f32,
 ) -> Tensor<1> {
     let [n, _] = sigma.dims();
-    let dev = sigma.device();
     let w = spec.detach().mean_dim(1).add_scalar(1e-4).reshape([n]);
-    let seg_mean = |v: Tensor<1>| {
-        let z = Tensor::<1>::zeros([n_seg], &dev);
-        let sw = z
-            .clone()
-            .select_assign(0, seg.clone(), w.clone(), IndexingUpdateOp::Add);
-        let swv = z.select_assign(0, seg.clone(), w.clone() * v, IndexingUpdateOp::Add);
-        (swv / sw).select(0, seg.clone())
-    };
     let s = sigma.reshape([n]);
     let m = metallic.reshape([n]);
-    let dm = (m.clone() - seg_mean(m)).abs().mean();
-    let ds = (s.clone() - seg_mean(s)).abs().mean();
+    let dm = (m.clone() - weighted_label_mean(m, w.clone(), seg, n_seg))
+        .abs()
+        .mean();
+    let ds = (s.clone() - weighted_label_mean(s, w, seg, n_seg))
+        .abs()
+        .mean();
     (dm + ds).mul_scalar(weight)
 }
 
-/// Partner pairs for the semantic loss: for each pixel i and each of `partners` draws, a random
-/// pixel j with the same label (with replacement); labels with ≤ `partners` pixels use all
-/// pairs. Returns (i, j, label of i) as flat lists, grouped by label.
-pub fn semantic_pairs(
-    labels: &[i32],
-    partners: usize,
-    rng: &mut crate::rng::Rng,
-) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
-    let mut by_label: std::collections::BTreeMap<i32, Vec<usize>> = Default::default();
-    for (i, &l) in labels.iter().enumerate() {
-        by_label.entry(l).or_default().push(i);
-    }
-    let (mut is, mut js, mut ls) = (vec![], vec![], vec![]);
-    for (k, (_, members)) in by_label.iter().enumerate() {
-        for &i in members {
-            if members.len() <= partners {
-                for &j in members {
-                    is.push(i as i64);
-                    js.push(j as i64);
-                    ls.push(k as i64);
-                }
-            } else {
-                for _ in 0..partners {
-                    let j = members[rng.below(members.len() as u64) as usize];
-                    is.push(i as i64);
-                    js.push(j as i64);
-                    ls.push(k as i64);
-                }
-            }
-        }
-    }
-    (is, js, ls)
+/// Partner slots of the semantic loss (Eq. 20 with the reference's sampling): `width` slots per
+/// pixel, in pixel order. A pixel whose label has more than `partners` pixels draws `partners`
+/// partners of its label at random, with replacement; otherwise it takes every pixel of its
+/// label (itself included) and the slots left over are padding.
+#[derive(Clone, Debug)]
+pub struct SemanticPairs {
+    pub width: usize,
+    /// Partner index per slot (n × width); padding points at the pixel itself.
+    pub partner: Vec<i64>,
+    /// False on padding slots.
+    pub valid: Vec<bool>,
 }
 
-/// Eq. 20 (semantic variant): bilateral smoothing of σ and m within each label. For pairs
-/// (i, j): w_ij = exp(−|a_i − a_j|²/(2 s_a²))·exp(−|p_i − p_j|²/(2 s_p²)) with detached base
-/// colour a and bbox-normalised positions p; r̄_i = Σ_j w_ij r_j / (1e-4 + Σ_j w_ij), likewise m̄.
-/// The per-pixel |r̄_i − r_i| + |m̄_i − m_i| is averaged per label and summed over labels.
-#[allow(clippy::too_many_arguments)]
+pub fn semantic_pairs(labels: &[i32], partners: usize, rng: &mut crate::rng::Rng) -> SemanticPairs {
+    let mut by_label: std::collections::BTreeMap<i32, Vec<i64>> = Default::default();
+    for (i, &l) in labels.iter().enumerate() {
+        by_label.entry(l).or_default().push(i as i64);
+    }
+    let width = by_label
+        .values()
+        .map(|m| m.len().min(partners))
+        .max()
+        .unwrap_or(0);
+    let n = labels.len();
+    let mut partner = Vec::with_capacity(n * width);
+    let mut valid = Vec::with_capacity(n * width);
+    for (i, l) in labels.iter().enumerate() {
+        let members = &by_label[l];
+        if members.len() > partners {
+            for _ in 0..width {
+                partner.push(members[rng.below(members.len() as u64) as usize]);
+                valid.push(true);
+            }
+        } else {
+            partner.extend_from_slice(members);
+            valid.extend(std::iter::repeat_n(true, members.len()));
+            partner.extend(std::iter::repeat_n(i as i64, width - members.len()));
+            valid.extend(std::iter::repeat_n(false, width - members.len()));
+        }
+    }
+    SemanticPairs {
+        width,
+        partner,
+        valid,
+    }
+}
+
+/// Eq. 20's normalised bilateral weights ŵ_ij = w_ij / (1e-4 + Σ_j w_ij), with
+/// w_ij = exp(−|a_i − a_j|²/(2 s_a²))·exp(−|p_i − p_j|²/(2 s_p²)), base colour `a` and
+/// bbox-normalised positions `pos` (3 floats per pixel each). Computed on the host: a is
+/// detached and p is data, so no gradient flows through them.
+pub fn semantic_weights(
+    pairs: &SemanticPairs,
+    a: &[f32],
+    pos: &[f32],
+    s_a: f32,
+    s_p: f32,
+) -> Vec<f32> {
+    let (ka, kp) = (-0.5 / (s_a * s_a), -0.5 / (s_p * s_p));
+    let d2 = |v: &[f32], i: usize, j: usize| -> f32 {
+        (0..3).map(|c| (v[3 * i + c] - v[3 * j + c]).powi(2)).sum()
+    };
+    let mut out = vec![0f32; pairs.partner.len()];
+    if pairs.width == 0 {
+        return out;
+    }
+    for (i, row) in out.chunks_mut(pairs.width).enumerate() {
+        let mut sum = 1e-4f32;
+        for (k, w) in row.iter_mut().enumerate() {
+            let slot = i * pairs.width + k;
+            if pairs.valid[slot] {
+                let j = pairs.partner[slot] as usize;
+                *w = (ka * d2(a, i, j) + kp * d2(pos, i, j)).exp();
+                sum += *w;
+            }
+        }
+        row.iter_mut().for_each(|w| *w /= sum);
+    }
+    out
+}
+
+/// Eq. 20 (semantic variant): bilateral smoothing of σ and m within each label:
+/// r̄_i = Σ_j ŵ_ij r_j (weights from `semantic_weights`), likewise m̄; the per-pixel
+/// |r̄_i − r_i| + |m̄_i − m_i| is averaged per label and the label means are summed.
 pub fn semantic_loss(
     sigma: Tensor<2>,
     metallic: Tensor<2>,
-    a: Tensor<2>,
-    pos: Tensor<2>,
-    pairs: &(Vec<i64>, Vec<i64>, Vec<i64>),
+    pairs: &SemanticPairs,
+    weights: &[f32],
     labels_per_pixel: &[i64],
     n_labels: usize,
-    s_a: f32,
-    s_p: f32,
     weight: f32,
 ) -> Tensor<1> {
     let [n, _] = sigma.dims();
     let dev: Device = sigma.device();
-    let np = pairs.0.len();
-    let idx = |v: &Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v.clone(), [np]), &dev);
-    let (ii, jj) = (idx(&pairs.0), idx(&pairs.1));
-    let a = a.detach();
-    let da = (a.clone().select(0, ii.clone()) - a.select(0, jj.clone()))
-        .powi_scalar(2)
-        .sum_dim(1);
-    let dp = (pos.clone().select(0, ii.clone()) - pos.select(0, jj.clone()))
-        .powi_scalar(2)
-        .sum_dim(1);
-    let w = (da.div_scalar(-2.0 * s_a * s_a) + dp.div_scalar(-2.0 * s_p * s_p))
-        .exp()
-        .reshape([np]);
-    let s = sigma.reshape([n]);
-    let m = metallic.reshape([n]);
-    let z = Tensor::<1>::zeros([n], &dev);
-    let sw = z
-        .clone()
-        .select_assign(0, ii.clone(), w.clone(), IndexingUpdateOp::Add)
-        .add_scalar(1e-4);
-    let bar = |v: Tensor<1>| {
-        z.clone().select_assign(
-            0,
-            ii.clone(),
-            w.clone() * v.select(0, jj.clone()),
-            IndexingUpdateOp::Add,
-        ) / sw.clone()
-    };
-    let per_pixel = (bar(s.clone()) - s).abs() + (bar(m.clone()) - m).abs();
+    let sm = Tensor::cat(vec![sigma, metallic], 1);
+    let p = pairs.width;
+    let w = Tensor::<3>::from_data(TensorData::new(weights.to_vec(), [n, p, 1]), &dev);
+    let bar = (select_rows(sm.clone(), &pairs.partner).reshape([n, p, 2]) * w)
+        .sum_dim(1)
+        .reshape([n, 2]);
+    let per_pixel = (bar - sm).abs().sum_dim(1).reshape([n]);
     // Mean per label, summed over labels.
-    let lab = Tensor::<1, Int>::from_data(TensorData::new(labels_per_pixel.to_vec(), [n]), &dev);
-    let zl = Tensor::<1>::zeros([n_labels], &dev);
-    let count = zl.clone().select_assign(
-        0,
-        lab.clone(),
-        Tensor::<1>::ones([n], &dev),
-        IndexingUpdateOp::Add,
-    );
-    let sum = zl.select_assign(0, lab, per_pixel, IndexingUpdateOp::Add);
+    let count = scatter_add(n_labels, labels_per_pixel, Tensor::<1>::ones([n], &dev));
+    let sum = scatter_add(n_labels, labels_per_pixel, per_pixel);
     (sum / count.clamp_min(1.0)).sum().mul_scalar(weight)
 }

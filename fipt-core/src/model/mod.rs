@@ -6,6 +6,7 @@
 pub mod backend;
 pub mod brdf;
 pub mod fields;
+pub mod gather;
 pub mod hashgrid;
 pub mod hashgrid_tensor;
 pub mod loss;

@@ -15,9 +15,9 @@ use super::render::{Shadings, composite, render};
 use crate::brdf::ROUGHNESS_LEVELS;
 use crate::rng::Rng;
 use burn::config::Config;
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -125,7 +125,9 @@ pub struct Trainer {
     optim: ModuleOptimizer,
     grid_grad: TableGrad,
     grid_adam: TableAdam,
-    rng: Rng,
+    /// Seeds the semantic-loss partner draws, keyed by step: `gradients` and `step` at the
+    /// same step see the same pairs.
+    seed: u64,
     pub steps: u64,
     /// Accumulated time per phase of `step`.
     pub profile: StepProfile,
@@ -155,13 +157,24 @@ fn flat3(v: &[[f32; 3]]) -> Vec<f32> {
     v.iter().flatten().copied().collect()
 }
 
+/// Backward from `total`: the gradients and, on the host, d total / d encoding.
+fn backward(enc: Tensor<2>, total: Tensor<1>) -> (burn::tensor::Gradients, Vec<f32>) {
+    let grads = total.backward();
+    let g_enc = enc
+        .grad(&grads)
+        .expect("encoding is a leaf of the graph")
+        .try_into_vec_as::<f32>()
+        .expect("f32 gradient");
+    (grads, g_enc)
+}
+
 impl Trainer {
     /// A fresh model on `device` (a plain device; autodiff is added here), seeded by `seed`.
     pub fn new(cfg: TrainConfig, device: &Device, seed: u64) -> Self {
         device.seed(seed);
         let ad = device.clone().autodiff();
         let field = cfg.material.init(&ad, seed);
-        let emission = cfg.emission.init(&ad);
+        let emission = cfg.emission.init(&ad, seed);
         let optim = AdamConfig::new()
             .with_beta_1(cfg.beta1)
             .with_beta_2(cfg.beta2)
@@ -180,14 +193,14 @@ impl Trainer {
             optim,
             grid_grad,
             grid_adam,
-            rng: Rng::new(seed, 0x5e9),
+            seed,
             steps: 0,
             profile: StepProfile::default(),
         }
     }
 
-    /// One optimisation step on `batch` with segmentation loss `mode`.
-    pub fn step(&mut self, batch: &Batch, mode: SegMode) -> LossParts {
+    /// The forward pass: the encoding leaf, the total loss and its parts.
+    fn forward(&mut self, batch: &Batch, mode: SegMode) -> (Tensor<2>, Tensor<1>, LossParts) {
         let n = batch.len();
         let dev = self.device.clone();
         let d = self.grid.output_dim();
@@ -216,13 +229,17 @@ impl Trainer {
             diffuse: ld.into_scalar(),
             seg: lseg.into_scalar(),
         };
+        let p = &mut self.profile;
+        p.encode += (t1 - t0).as_secs_f64();
+        p.forward += t1.elapsed().as_secs_f64();
+        (enc, total, parts)
+    }
+
+    /// One optimisation step on `batch` with segmentation loss `mode`.
+    pub fn step(&mut self, batch: &Batch, mode: SegMode) -> LossParts {
+        let (enc, total, parts) = self.forward(batch, mode);
         let t2 = Instant::now();
-        let grads = total.backward();
-        let g_enc: Vec<f32> = enc
-            .grad(&grads)
-            .expect("encoding is a leaf of the graph")
-            .try_into_vec_as::<f32>()
-            .expect("f32 gradient");
+        let (grads, g_enc) = backward(enc, total);
         let t3 = Instant::now();
         self.grid.backward_adam(
             &batch.x_unit,
@@ -236,14 +253,37 @@ impl Trainer {
         self.nets = self.optim.step(self.cfg.lr, self.nets.clone(), gp);
         let t5 = Instant::now();
         let p = &mut self.profile;
-        p.encode += (t1 - t0).as_secs_f64();
-        p.forward += (t2 - t1).as_secs_f64();
         p.backward += (t3 - t2).as_secs_f64();
         p.grid_update += (t4 - t3).as_secs_f64();
         p.net_update += (t5 - t4).as_secs_f64();
         p.steps += 1;
         self.steps += 1;
         parts
+    }
+
+    /// Forward and backward without an update: the loss parts, the gradient of the loss w.r.t.
+    /// the hash-grid encoding (N × `output_dim`, host) and w.r.t. every network parameter in
+    /// module order (host). For parity tests across backends and for diagnostics.
+    pub fn gradients(&mut self, batch: &Batch, mode: SegMode) -> StepGradients {
+        let (enc, total, parts) = self.forward(batch, mode);
+        let (grads, encoding) = backward(enc, total);
+        let mut visitor = ParamGrads {
+            grads: &grads,
+            out: Vec::new(),
+        };
+        self.nets.visit(&mut visitor);
+        StepGradients {
+            parts,
+            encoding,
+            params: visitor.out,
+        }
+    }
+
+    /// Every network parameter in module order, as host vectors.
+    pub fn net_params(&self) -> Vec<Vec<f32>> {
+        let mut visitor = ParamValues { out: Vec::new() };
+        self.nets.visit(&mut visitor);
+        visitor.out
     }
 
     fn seg_loss(
@@ -253,7 +293,6 @@ impl Trainer {
         mat: &super::fields::Material,
         spec: Tensor<2>,
     ) -> Tensor<1> {
-        let n = batch.len();
         let dev = self.device.clone();
         // Compact the batch's segment ids to 0..S−1.
         let mut map: HashMap<i32, i64> = HashMap::new();
@@ -267,40 +306,83 @@ impl Trainer {
             .collect();
         match mode {
             SegMode::None => Tensor::<1>::zeros([1], &dev),
-            SegMode::Part => {
-                let seg = Tensor::<1, Int>::from_data(TensorData::new(compact, [n]), &dev);
-                loss::part_loss(
-                    mat.sigma.clone(),
-                    mat.metallic.clone(),
-                    spec,
-                    seg,
-                    map.len(),
-                    self.cfg.lambda_part,
-                )
-            }
+            SegMode::Part => loss::part_loss(
+                mat.sigma.clone(),
+                mat.metallic.clone(),
+                spec,
+                &compact,
+                map.len(),
+                self.cfg.lambda_part,
+            ),
             SegMode::Semantic => {
                 let labels: Vec<i32> = compact.iter().map(|&k| k as i32).collect();
-                let pairs = loss::semantic_pairs(&labels, self.cfg.sem_partners, &mut self.rng);
+                let pairs = loss::semantic_pairs(
+                    &labels,
+                    self.cfg.sem_partners,
+                    &mut Rng::new(self.seed ^ 0x5e9, self.steps),
+                );
                 let pos: Vec<f32> = batch
                     .x_unit
                     .iter()
                     .flatten()
                     .map(|v| 2.0 * v - 1.0)
                     .collect();
+                let a: Vec<f32> = mat.a.clone().try_into_vec_as::<f32>().expect("f32");
+                let w = loss::semantic_weights(
+                    &pairs,
+                    &a,
+                    &pos,
+                    self.cfg.sem_sigma_a,
+                    self.cfg.sem_sigma_p,
+                );
                 loss::semantic_loss(
                     mat.sigma.clone(),
                     mat.metallic.clone(),
-                    mat.a.clone(),
-                    tensor2(pos, [n, 3], &dev),
                     &pairs,
+                    &w,
                     &compact,
                     map.len(),
-                    self.cfg.sem_sigma_a,
-                    self.cfg.sem_sigma_p,
                     self.cfg.lambda_sem,
                 )
             }
         }
+    }
+}
+
+/// What `Trainer::gradients` returns.
+#[derive(Clone, Debug)]
+pub struct StepGradients {
+    pub parts: LossParts,
+    /// d loss / d encoding, N × `output_dim`.
+    pub encoding: Vec<f32>,
+    /// d loss / d parameter, one vector per parameter in module order (zeros where unused).
+    pub params: Vec<Vec<f32>>,
+}
+
+struct ParamGrads<'a> {
+    grads: &'a burn::tensor::Gradients,
+    out: Vec<Vec<f32>>,
+}
+
+impl ModuleVisitor for ParamGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let v = param.val();
+        let n = v.shape().num_elements();
+        self.out.push(match v.grad(self.grads) {
+            Some(g) => g.try_into_vec_as::<f32>().expect("f32 gradient"),
+            None => vec![0.0; n],
+        });
+    }
+}
+
+struct ParamValues {
+    out: Vec<Vec<f32>>,
+}
+
+impl ModuleVisitor for ParamValues {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.out
+            .push(param.val().try_into_vec_as::<f32>().expect("f32 parameter"));
     }
 }
 

@@ -6,7 +6,7 @@ use super::loss;
 use super::render::{Shadings, composite, render, roughness_weights};
 use crate::brdf as sb;
 use crate::rng::Rng;
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
 use glam::Vec3;
 
 fn dev() -> Device {
@@ -279,12 +279,11 @@ fn loss_gradients() {
         &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
         &|x| {
             let d = x[0].device();
-            let sg = Tensor::<1, Int>::from_data(TensorData::new(seg.clone(), [n]), &d);
             loss::part_loss(
                 x[0].clone(),
                 x[1].clone(),
                 t2(&spec, [n, 3], &d),
-                sg,
+                &seg,
                 3,
                 1.0,
             )
@@ -297,28 +296,96 @@ fn loss_gradients() {
     let p = uniform(3 * n, -0.2, 0.2, 27);
     let labels: Vec<i32> = (0..n as i32).map(|i| i % 2).collect();
     let pairs = loss::semantic_pairs(&labels, 4, &mut Rng::new(3, 3));
+    let w = loss::semantic_weights(&pairs, &a, &p, 0.05, 0.3);
     let lab64: Vec<i64> = labels.iter().map(|&l| l as i64).collect();
     grad_check(
         "L_seg semantic",
-        &[(s, [n, 1]), (m, [n, 1]), (p, [n, 3])],
-        &|x| {
-            let d = x[0].device();
-            loss::semantic_loss(
-                x[0].clone(),
-                x[1].clone(),
-                t2(&a, [n, 3], &d),
-                x[2].clone(),
-                &pairs,
-                &lab64,
-                2,
-                0.05,
-                0.3,
-                1.0,
-            )
-        },
+        &[(s, [n, 1]), (m, [n, 1])],
+        &|x| loss::semantic_loss(x[0].clone(), x[1].clone(), &pairs, &w, &lab64, 2, 1.0),
         1e-6,
         1e-6,
         1e-9,
+    );
+}
+
+/// Eq. 20 against a direct evaluation of the formula, pair by pair, in f64: both the sampled
+/// branch (labels larger than the partner count) and the all-pairs branch with padding.
+#[test]
+fn semantic_loss_matches_the_direct_formula() {
+    let d = dev();
+    let n = 40;
+    // Label 0: 30 pixels (> 8 partners, sampled); label 1: 7 pixels; label 2: 3 pixels.
+    let labels: Vec<i32> = (0..n)
+        .map(|i| {
+            if i < 30 {
+                0
+            } else if i < 37 {
+                1
+            } else {
+                2
+            }
+        })
+        .collect();
+    let (s, m) = (uniform(n, 0.1, 0.9, 40), uniform(n, 0.0, 1.0, 41));
+    let a = uniform(3 * n, 0.3, 0.7, 42);
+    let p = uniform(3 * n, -0.5, 0.5, 43);
+    let (sa, sp) = (0.2f32, 0.4f32);
+    let pairs = loss::semantic_pairs(&labels, 8, &mut Rng::new(5, 5));
+    assert_eq!(pairs.width, 8);
+    let w = loss::semantic_weights(&pairs, &a, &p, sa, sp);
+    let lab64: Vec<i64> = labels.iter().map(|&l| l as i64).collect();
+    let got: f32 = loss::semantic_loss(
+        t2(&s, [n, 1], &d),
+        t2(&m, [n, 1], &d),
+        &pairs,
+        &w,
+        &lab64,
+        3,
+        1.0,
+    )
+    .into_scalar();
+    let mut per_label = [(0f64, 0usize); 3];
+    for i in 0..n {
+        let (mut sw, mut ss, mut sm) = (1e-4f64, 0f64, 0f64);
+        for k in 0..pairs.width {
+            let slot = i * pairs.width + k;
+            if !pairs.valid[slot] {
+                continue;
+            }
+            let j = pairs.partner[slot] as usize;
+            assert_eq!(labels[j], labels[i], "partners share the label");
+            let dist = |v: &[f32]| -> f64 {
+                (0..3)
+                    .map(|c| (v[3 * i + c] as f64 - v[3 * j + c] as f64).powi(2))
+                    .sum()
+            };
+            let wij = (-dist(&a) / (2.0 * (sa as f64).powi(2))
+                - dist(&p) / (2.0 * (sp as f64).powi(2)))
+            .exp();
+            sw += wij;
+            ss += wij * s[j] as f64;
+            sm += wij * m[j] as f64;
+        }
+        let l = labels[i] as usize;
+        per_label[l].0 += (ss / sw - s[i] as f64).abs() + (sm / sw - m[i] as f64).abs();
+        per_label[l].1 += 1;
+    }
+    // Small labels take every member exactly once.
+    let row = |i: usize| -> Vec<i64> {
+        let mut v: Vec<i64> = (0..8)
+            .filter(|&k| pairs.valid[i * 8 + k])
+            .map(|k| pairs.partner[i * 8 + k])
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(row(31), (30..37).collect::<Vec<i64>>());
+    assert_eq!(row(38), (37..40).collect::<Vec<i64>>());
+    let want: f64 = per_label.iter().map(|(sum, c)| sum / *c as f64).sum();
+    // The weights are f32 on the host: agreement to f32 rounding.
+    assert!(
+        (got as f64 - want).abs() < 1e-5 * want.abs().max(1.0),
+        "{got} vs {want}"
     );
 }
 
