@@ -61,6 +61,8 @@ pub struct Accel {
     bvh: CwBvh,
     leaf_tris: Vec<LeafTri>,
     leaf_prim: Vec<u32>,
+    /// Unit winding normal per triangle (mesh order).
+    normals: Vec<Vec3>,
 }
 
 impl Accel {
@@ -94,7 +96,16 @@ impl Accel {
             bvh,
             leaf_tris,
             leaf_prim,
+            normals: (0..mesh.num_triangles()).map(|t| mesh.normal(t)).collect(),
         }
+    }
+
+    /// Unit normal of triangle `tri` turned to face against direction `d` (the side a ray
+    /// along `d` hits).
+    #[inline]
+    pub fn facing_normal(&self, tri: u32, d: Vec3) -> Vec3 {
+        let n = self.normals[tri as usize];
+        if n.dot(d) > 0.0 { -n } else { n }
     }
 
     /// Closest hit along `o + t·d`, t ∈ (tmin, tmax). `d` should be unit length.

@@ -48,12 +48,13 @@ impl BakeSamples {
     }
 }
 
-/// L′ seen along a ray from `x`: the light field at the first hit, 0 on a miss.
+/// L′ seen along a ray from `x`: the light field at the first hit, on the side the ray hits;
+/// 0 on a miss.
 #[inline]
 pub fn radiance_along(accel: &Accel, lf: &LightField, x: Vec3, w: Vec3) -> Vec3 {
     let o = x + w * RAY_EPS;
     match accel.closest(o, w, 0.0, f32::INFINITY) {
-        Some(h) => lf.query(o + w * h.t),
+        Some(h) => lf.query(o + w * h.t, accel.facing_normal(h.tri, w)),
         None => Vec3::ZERO,
     }
 }
@@ -173,6 +174,7 @@ pub fn build_light_field(views: &[BakeView], res: usize) -> LightField {
                 .map(|p| {
                     (
                         v.hits.position[p],
+                        v.hits.normal[p],
                         [v.image[3 * p], v.image[3 * p + 1], v.image[3 * p + 2]],
                     )
                 })
@@ -279,7 +281,15 @@ mod tests {
                 } else {
                     (u, v)
                 };
-                samples.push((a + (b - a) * u + (c - a) * v, [1.0; 3]));
+                let x = a + (b - a) * u + (c - a) * v;
+                // The side facing the inside of the box, where the rays come from.
+                let n = mesh.normal(t);
+                let n = if n.dot(Vec3::splat(0.5) - x) < 0.0 {
+                    -n
+                } else {
+                    n
+                };
+                samples.push((x, n, [1.0; 3]));
             }
         }
         let lf = LightField::build(

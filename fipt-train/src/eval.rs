@@ -186,3 +186,52 @@ pub fn part_table(
     }
     rows
 }
+
+/// A ground-truth-vs-estimate figure of one view (linear values, for `write_png`): top row the
+/// photo and the true k_d, a′, σ and emission; bottom row 4×|k_d error| and the estimates.
+/// Missing ground-truth maps are black. Returns (width, height, RGB).
+pub fn comparison_figure(view: &View, m: &ViewMaps) -> (usize, usize, Vec<f32>) {
+    let (w, h) = (m.width, m.height);
+    let n = w * h;
+    let gt_rgb = |k: MapKind| -> Vec<f32> {
+        view.map(k).map_or(vec![0.0; 3 * n], |i| {
+            (0..n).flat_map(|p| i.rgb(p)).collect()
+        })
+    };
+    let grey = |v: &[f32]| -> Vec<f32> { v.iter().flat_map(|&x| [x; 3]).collect() };
+    let gt_sigma: Vec<f32> = view
+        .map(MapKind::Roughness)
+        .map_or(vec![0.0; n], |i| (0..n).map(|p| i.scalar(p)).collect());
+    let gt_kd = gt_rgb(MapKind::DiffCol);
+    let err: Vec<f32> = gt_kd
+        .iter()
+        .zip(&m.kd)
+        .map(|(a, b)| 4.0 * (a - b).abs())
+        .collect();
+    let image: Vec<f32> = (0..n).flat_map(|p| view.image.rgb(p)).collect();
+    let top = [
+        image,
+        gt_kd,
+        gt_rgb(MapKind::Albedo),
+        grey(&gt_sigma),
+        gt_rgb(MapKind::Emit),
+    ];
+    let bottom = [
+        err,
+        m.kd.clone(),
+        m.albedo.clone(),
+        grey(&m.sigma),
+        m.emit.clone(),
+    ];
+    let cols = top.len();
+    let mut out = vec![0f32; 3 * n * cols * 2];
+    for (r, row) in [top, bottom].iter().enumerate() {
+        for (c, tile) in row.iter().enumerate() {
+            for y in 0..h {
+                let dst = 3 * ((r * h + y) * w * cols + c * w);
+                out[dst..dst + 3 * w].copy_from_slice(&tile[3 * y * w..3 * (y + 1) * w]);
+            }
+        }
+    }
+    (w * cols, 2 * h, out)
+}

@@ -182,6 +182,26 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
     times.insert("maps_s".into(), json!(t.elapsed().as_secs_f64()));
 
     let (metrics, parts) = score(&ds, &baked.hits, &train_maps);
+    // Ground truth vs estimate of the worst and the best view by k_d PSNR.
+    let by_kd: Vec<(usize, f64)> = metrics
+        .per_view
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.kd_psnr.map(|v| (k, v)))
+        .collect();
+    let worst = by_kd.iter().min_by(|a, b| a.1.total_cmp(&b.1));
+    let best = by_kd.iter().max_by(|a, b| a.1.total_cmp(&b.1));
+    std::fs::create_dir_all(out.join("compare"))?;
+    for &(k, _) in worst.into_iter().chain(best) {
+        let (w, h, rgb) = eval::comparison_figure(&ds.train.views[k], &train_maps[k]);
+        crate::cache::write_png(
+            &out.join("compare").join(format!("train_{k:03}.png")),
+            w,
+            h,
+            &rgb,
+            1.0,
+        )?;
+    }
     let report = json!({
         "scene": scene.display().to_string(),
         "seg_loss": format!("{mode:?}").to_lowercase(),
