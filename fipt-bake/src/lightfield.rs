@@ -60,12 +60,10 @@ pub struct LightField {
     top: Vec<u32>,
     /// Per brick, the compact voxel index of each of its 512 voxels, or EMPTY.
     bricks: Vec<[u32; BRICK * BRICK * BRICK]>,
-    /// Per occupied voxel, the entry of each side (`side_of`), or EMPTY.
-    sides: Vec<[u32; 6]>,
-    /// Mean radiance per occupied (voxel, side) entry.
-    pub radiance: Vec<[f32; 3]>,
-    /// Number of pixels averaged per entry.
-    pub count: Vec<u32>,
+    /// Per occupied voxel and side (`side_of`): mean RGB radiance and, in the fourth lane, the
+    /// number of pixels averaged (0 = no pixel saw this side). Inline, so a query touches one
+    /// record.
+    sides: Vec<[[f32; 4]; 6]>,
 }
 
 /// Side of a surface by its (viewer-facing) normal: 2·axis + (component < 0).
@@ -125,10 +123,8 @@ impl LightField {
             top: vec![EMPTY; bpa * bpa * bpa],
             bricks: Vec::new(),
             sides: Vec::new(),
-            radiance: Vec::new(),
-            count: Vec::new(),
         };
-        let mut sums: Vec<[f64; 3]> = Vec::new();
+        let mut sums: Vec<[[f64; 4]; 6]> = Vec::new();
         for (p, n, c) in samples {
             let (t, l) = lf.slot(lf.voxel(p));
             if lf.top[t] == EMPTY {
@@ -137,35 +133,30 @@ impl LightField {
             }
             let brick = &mut lf.bricks[lf.top[t] as usize];
             if brick[l] == EMPTY {
-                brick[l] = lf.sides.len() as u32;
-                lf.sides.push([EMPTY; 6]);
+                brick[l] = sums.len() as u32;
+                sums.push([[0.0; 4]; 6]);
             }
-            let side = &mut lf.sides[brick[l] as usize][side_of(n)];
-            if *side == EMPTY {
-                *side = sums.len() as u32;
-                sums.push([0.0; 3]);
-                lf.count.push(0);
-            }
-            let k = *side as usize;
+            let acc = &mut sums[brick[l] as usize][side_of(n)];
             for i in 0..3 {
-                sums[k][i] += c[i] as f64;
+                acc[i] += c[i] as f64;
             }
-            lf.count[k] += 1;
+            acc[3] += 1.0;
         }
-        lf.radiance = sums
+        lf.sides = sums
             .iter()
-            .zip(&lf.count)
-            .map(|(s, &n)| {
-                let n = n as f64;
-                [(s[0] / n) as f32, (s[1] / n) as f32, (s[2] / n) as f32]
+            .map(|v| {
+                v.map(|[r, g, b, n]| {
+                    let k = if n > 0.0 { 1.0 / n } else { 0.0 };
+                    [(r * k) as f32, (g * k) as f32, (b * k) as f32, n as f32]
+                })
             })
             .collect();
         lf
     }
 
-    /// The side entries of the voxel containing `p`, if occupied.
+    /// The side records of the voxel containing `p`, if occupied.
     #[inline]
-    fn voxel_sides(&self, p: Vec3) -> Option<&[u32; 6]> {
+    fn voxel_sides(&self, p: Vec3) -> Option<&[[f32; 4]; 6]> {
         let (t, l) = self.slot(self.voxel(p));
         let b = self.top[t];
         if b == EMPTY {
@@ -183,20 +174,20 @@ impl LightField {
             return Vec3::ZERO;
         };
         let own = sides[side_of(n)];
-        if own != EMPTY {
-            return Vec3::from(self.radiance[own as usize]);
+        if own[3] > 0.0 {
+            return Vec3::new(own[0], own[1], own[2]);
         }
-        let (mut sum, mut weight) = (Vec3::ZERO, 0u32);
-        for (s, &k) in sides.iter().enumerate() {
-            if k != EMPTY && side_direction(s).dot(n) > 0.0 {
-                sum += Vec3::from(self.radiance[k as usize]) * self.count[k as usize] as f32;
-                weight += self.count[k as usize];
+        let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
+        for (s, r) in sides.iter().enumerate() {
+            if r[3] > 0.0 && side_direction(s).dot(n) > 0.0 {
+                sum += Vec3::new(r[0], r[1], r[2]) * r[3];
+                weight += r[3];
             }
         }
-        if weight == 0 {
+        if weight == 0.0 {
             Vec3::ZERO
         } else {
-            sum / weight as f32
+            sum / weight
         }
     }
 
@@ -209,14 +200,16 @@ impl LightField {
     pub fn memory_bytes(&self) -> usize {
         self.top.len() * 4
             + self.bricks.len() * BRICK * BRICK * BRICK * 4
-            + self.sides.len() * 24
-            + self.radiance.len() * 12
-            + self.count.len() * 4
+            + self.sides.len() * std::mem::size_of::<[[f32; 4]; 6]>()
     }
 
     /// A light field with the same value everywhere it is occupied (tests, furnaces).
     pub fn fill(&mut self, value: [f32; 3]) {
-        self.radiance.iter_mut().for_each(|r| *r = value);
+        for v in &mut self.sides {
+            for r in v.iter_mut().filter(|r| r[3] > 0.0) {
+                r[..3].copy_from_slice(&value);
+            }
+        }
     }
 }
 

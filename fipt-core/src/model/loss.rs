@@ -4,6 +4,7 @@
 
 use super::gather::{scatter_add, select_1d, select_rows};
 use burn::tensor::{Device, Tensor, TensorData};
+use rayon::prelude::*;
 
 /// The sRGB OETF Γ, no clamp: 12.92x for x ≤ 0.0031308, else 1.055·x^(1/2.4) − 0.055.
 pub fn tonemap(x: Tensor<2>) -> Tensor<2> {
@@ -131,18 +132,20 @@ pub fn semantic_weights(
     if pairs.width == 0 {
         return out;
     }
-    for (i, row) in out.chunks_mut(pairs.width).enumerate() {
-        let mut sum = 1e-4f32;
-        for (k, w) in row.iter_mut().enumerate() {
-            let slot = i * pairs.width + k;
-            if pairs.valid[slot] {
-                let j = pairs.partner[slot] as usize;
-                *w = (ka * d2(a, i, j) + kp * d2(pos, i, j)).exp();
-                sum += *w;
+    out.par_chunks_mut(pairs.width)
+        .enumerate()
+        .for_each(|(i, row)| {
+            let mut sum = 1e-4f32;
+            for (k, w) in row.iter_mut().enumerate() {
+                let slot = i * pairs.width + k;
+                if pairs.valid[slot] {
+                    let j = pairs.partner[slot] as usize;
+                    *w = (ka * d2(a, i, j) + kp * d2(pos, i, j)).exp();
+                    sum += *w;
+                }
             }
-        }
-        row.iter_mut().for_each(|w| *w /= sum);
-    }
+            row.iter_mut().for_each(|w| *w /= sum);
+        });
     out
 }
 
