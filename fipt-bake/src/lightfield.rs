@@ -8,8 +8,9 @@
 //! emitter) no longer blends them: a query from a hit on one side reads that side's pixels. A
 //! side nobody photographed falls back to the sides facing the same half-space (a curved
 //! surface crossing a side boundary), never to the opposite side; with none, it is 0. On
-//! fipt-room this removes a bright ring around the ceiling light and the lines along room edges
-//! in L_d (numbers in the bake test).
+//! fipt-room this removes a 2× too bright ring of L_d around the ceiling light and the lines
+//! along the room's edges: the GT-material render gains 0.4 dB overall, 3–4 dB on the views of
+//! the ceiling light.
 //!
 //! Storage is sparse: a coarse table of 8³-voxel bricks, with bricks allocated only where some
 //! voxel is occupied, so a query is two array reads.
