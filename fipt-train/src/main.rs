@@ -20,6 +20,35 @@ struct Cli {
     cmd: Cmd,
 }
 
+/// The scene, output folder, config and seed of a pipeline job (`bake`, `run`).
+#[derive(clap::Args)]
+struct JobArgs {
+    #[arg(long)]
+    scene: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    /// Config file (JSON); defaults to the reference constants.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Overrides the config's seed.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+impl JobArgs {
+    /// The config file (or the defaults) with the seed override applied.
+    fn config(&self) -> anyhow::Result<fipt_train::config::Config> {
+        let mut cfg = match &self.config {
+            Some(p) => fipt_train::config::Config::load(p)?,
+            None => fipt_train::config::Config::default(),
+        };
+        if let Some(s) = self.seed {
+            cfg.seed = s;
+        }
+        Ok(cfg)
+    }
+}
+
 #[derive(Subcommand)]
 enum Cmd {
     /// Dataset doctor: load a scene, cast every pixel-centre ray and report what is wrong.
@@ -32,32 +61,19 @@ enum Cmd {
     },
     /// Stage 1 alone: L′, the baked and filtered shadings (cached), EXR and PNG outputs.
     Bake {
-        #[arg(long)]
-        scene: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        /// Config file (JSON); defaults to the reference constants.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        #[arg(long)]
-        seed: Option<u64>,
+        #[command(flatten)]
+        job: JobArgs,
         /// No progress bar; print the report as JSON.
         #[arg(long)]
         json: bool,
     },
     /// The pipeline: bake (cached) → stage 2 → emitters → maps → metrics.
     Run {
-        #[arg(long)]
-        scene: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long)]
-        config: Option<PathBuf>,
+        #[command(flatten)]
+        job: JobArgs,
         /// Backend: flex, ndarray or wgpu (overrides the config).
         #[arg(long)]
         backend: Option<BackendKind>,
-        #[arg(long)]
-        seed: Option<u64>,
         /// No progress bars; print metrics.json to stdout.
         #[arg(long)]
         json: bool,
@@ -120,14 +136,8 @@ fn main() {
     let cli = Cli::parse();
     let res = match cli.cmd {
         Cmd::Check { scene, json } => check::run(&scene, json),
-        Cmd::Bake {
-            scene,
-            out,
-            config,
-            seed,
-            json,
-        } => load_config(config.as_deref(), seed).and_then(|cfg| {
-            let r = fipt_train::bake_cmd::run(&scene, &out, &cfg, json)?;
+        Cmd::Bake { job, json } => job.config().and_then(|cfg| {
+            let r = fipt_train::bake_cmd::run(&job.scene, &job.out, &cfg, json)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {
@@ -135,18 +145,11 @@ fn main() {
             }
             Ok(())
         }),
-        Cmd::Run {
-            scene,
-            out,
-            config,
-            backend,
-            seed,
-            json,
-        } => load_config(config.as_deref(), seed).and_then(|mut cfg| {
+        Cmd::Run { job, backend, json } => job.config().and_then(|mut cfg| {
             if let Some(b) = backend {
                 cfg.backend = b;
             }
-            let r = fipt_train::run_cmd::run(&scene, &out, &cfg, json)?;
+            let r = fipt_train::run_cmd::run(&job.scene, &job.out, &cfg, json)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             }
@@ -183,20 +186,6 @@ fn main() {
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
-}
-
-fn load_config(
-    path: Option<&std::path::Path>,
-    seed: Option<u64>,
-) -> anyhow::Result<fipt_train::config::Config> {
-    let mut cfg = match path {
-        Some(p) => fipt_train::config::Config::load(p)?,
-        None => fipt_train::config::Config::default(),
-    };
-    if let Some(s) = seed {
-        cfg.seed = s;
-    }
-    Ok(cfg)
 }
 
 fn print_bake_summary(r: &serde_json::Value) {

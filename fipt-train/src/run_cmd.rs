@@ -123,13 +123,14 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
         cfg.seed,
         !quiet,
     );
-    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
-    let reflected = stage2::reflected(&tr, &store, &sizes);
-    drop(store);
     tr.save(&out.join("model")).map_err(anyhow::Error::msg)?;
     times.insert("train_s".into(), json!(t.elapsed().as_secs_f64()));
 
+    // Emitters: the reflected radiance is only needed for the extraction rule.
     let t = Instant::now();
+    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
+    let reflected = stage2::reflected(&tr, &store, &sizes);
+    drop(store);
     let views: Vec<ObservedView> = baked
         .hits
         .iter()
@@ -159,10 +160,12 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
     let emission = emitters::radiance_per_triangle(ds.mesh.num_triangles(), &em);
     let mut train_maps = Vec::new();
     for split in ds.splits() {
-        let hits: Vec<ViewHits> = if split.name == "train" {
-            baked.hits.clone()
+        let cast: Vec<ViewHits>;
+        let hits: &[ViewHits] = if split.name == "train" {
+            &baked.hits
         } else {
-            stage1::cast_split(&accel, &ds.mesh, split)
+            cast = stage1::cast_split(&accel, &ds.mesh, split);
+            &cast
         };
         for (k, h) in hits.iter().enumerate() {
             let m = predict_view(
