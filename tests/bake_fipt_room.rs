@@ -46,6 +46,8 @@ fn gt_render_of_baked_shadings_matches_images() {
     eprintln!(
         "GT render PSNR: all {all:.2} dB, diffuse {diff:.2}, specular {spec:.2}, worst view {worst:.2}"
     );
-    assert!(all >= 27.0, "all-pixel PSNR {all:.2}");
-    assert!(diff >= 27.0, "diffuse PSNR {diff:.2}");
+    // Measured 31.84 / 32.21 dB. L′ with one mean per voxel (the reference) gives 30.82 /
+    // 31.19, with side records but sampling holes left at 0 31.20 / 31.56: both fail here.
+    assert!(all >= 31.5, "all-pixel PSNR {all:.2}");
+    assert!(diff >= 31.9, "diffuse PSNR {diff:.2}");
 }

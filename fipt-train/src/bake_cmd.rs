@@ -105,7 +105,7 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
         "total_s": t0.elapsed().as_secs_f64(),
         "secondary_rays": rays,
         "rays_per_s": if cached { None } else { Some(rays as f64 / bake_s) },
-        "light_field": {"res": bake_cfg.voxel_res, "occupied_voxels": baked.light_field.occupied(),
+        "light_field": {"res": bake_cfg.voxel_res, "occupied_voxels": baked.light_field.occupied(), "filled_voxels": baked.light_field.filled(),
             "memory_mb": baked.light_field.memory_bytes() as f64 / 1048576.0},
         "peak_rss_mb": fipt_core::io::peak_rss_mb(),
         "gt_render_psnr": gt,

@@ -403,3 +403,34 @@ fn tonemap_is_the_srgb_curve() {
         assert!((yi - want).abs() < 1e-5, "{xi}: {yi} vs {want}");
     }
 }
+
+/// The material MLP starts as tiny-cuda-nn's FullyFusedMLP: no biases and Xavier-uniform
+/// weights over 16-padded widths, U(±√(6/(fan_in + fan_out))). A PyTorch-default init
+/// (U(±1/√fan_in), 0.125 here) fails the lower bound on every layer.
+#[test]
+fn material_mlp_uses_the_tcnn_init() {
+    use super::fields::MaterialFieldConfig;
+    use super::hashgrid::HashGridConfig;
+    let d = dev();
+    // 20 levels × 2 features = 40 inputs, padded to 48.
+    let cfg = MaterialFieldConfig::new()
+        .with_grid(HashGridConfig::new().with_levels(20).with_log2_table(8));
+    let field = cfg.init(&d, 3);
+    let bounds = [
+        (6.0f32 / (48.0 + 64.0)).sqrt(),
+        (6.0f32 / 128.0).sqrt(),
+        (6.0f32 / (64.0 + 16.0)).sqrt(),
+    ];
+    assert_eq!(field.mlp.layers.len(), 3);
+    for (layer, bound) in field.mlp.layers.iter().zip(bounds) {
+        assert!(layer.bias.is_none());
+        let w: Vec<f32> = layer.weight.val().try_into_vec_as::<f32>().expect("f32");
+        let max = w.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(
+            max <= bound && max > 0.97 * bound,
+            "max |w| {max} vs bound {bound}"
+        );
+        let mean = w.iter().sum::<f32>() / w.len() as f32;
+        assert!(mean.abs() < 0.1 * bound, "mean {mean}");
+    }
+}
