@@ -211,6 +211,12 @@ impl HashGrid {
         assert_eq!(grad_out.len(), xs.len() * nl * nf);
         grad.step += 1;
         let stamp = grad.step;
+        let up = Upstream {
+            xs,
+            grad_out,
+            nl,
+            nf,
+        };
         let g_levels = split_levels(&self.levels, nf, &mut grad.values);
         let m_levels = split_levels(&self.levels, 1, &mut grad.mark);
         let touched: Vec<Vec<u32>> = g_levels
@@ -218,9 +224,7 @@ impl HashGrid {
             .zip(m_levels)
             .zip(self.levels.par_iter())
             .enumerate()
-            .map(|(l, ((gv, mark), level))| {
-                scatter_level(level, l, nl, nf, xs, grad_out, gv, mark, stamp)
-            })
+            .map(|(l, ((gv, mark), level))| scatter_level(level, l, &up, gv, mark, stamp))
             .collect();
         grad.touched = touched;
     }
@@ -239,6 +243,12 @@ impl HashGrid {
         assert_eq!(grad_out.len(), xs.len() * nl * nf);
         grad.step += 1;
         let coef = adam.advance(lr);
+        let up = Upstream {
+            xs,
+            grad_out,
+            nl,
+            nf,
+        };
         let levels = self.levels.clone();
         let p_l = split_levels(&levels, nf, &mut self.table);
         let m_l = split_levels(&levels, nf, &mut adam.m);
@@ -249,7 +259,7 @@ impl HashGrid {
             .zip(levels.par_iter())
             .enumerate()
             .for_each(|(l, (((p, m), v), level))| {
-                sorted_adam_level(&coef, level, l, nl, nf, xs, grad_out, p, m, v);
+                sorted_adam_level(&coef, level, l, &up, (p, m, v));
             });
         grad.touched.clear();
     }
@@ -395,23 +405,48 @@ struct AdamCoef {
     lr: f32,
 }
 
+impl AdamCoef {
+    /// One Adam update of a parameter `p` with moments `m`, `v` and gradient `g`.
+    #[inline(always)]
+    fn apply(&self, p: &mut f32, m: &mut f32, v: &mut f32, g: f32) {
+        *m = self.b1 * *m + (1.0 - self.b1) * g;
+        *v = self.b2 * *v + (1.0 - self.b2) * g * g;
+        *p -= self.lr * (*m / self.c1) / ((*v / self.c2).sqrt() + self.eps);
+    }
+}
+
+/// The output gradient of a batch: points, `n × levels·features` values and the layout.
+struct Upstream<'a> {
+    xs: &'a [[f32; 3]],
+    grad_out: &'a [f32],
+    nl: usize,
+    nf: usize,
+}
+
+impl Upstream<'_> {
+    /// Point `p`'s output gradient on level `l`.
+    #[inline(always)]
+    fn at(&self, p: usize, l: usize) -> &[f32] {
+        let base = p * self.nl * self.nf + l * self.nf;
+        &self.grad_out[base..base + self.nf]
+    }
+}
+
 /// Scatters one level's share of the output gradient; returns its touched entries (global).
 #[allow(clippy::too_many_arguments)]
 fn scatter_level(
     level: &Level,
     l: usize,
-    nl: usize,
-    nf: usize,
-    xs: &[[f32; 3]],
-    grad_out: &[f32],
+    up: &Upstream,
     gv: &mut [f32],
     mark: &mut [u32],
     stamp: u32,
 ) -> Vec<u32> {
+    let nf = up.nf;
     let mut t = Vec::new();
-    for (p, &x) in xs.iter().enumerate() {
+    for (p, &x) in up.xs.iter().enumerate() {
         let c = cell(level, x);
-        let go = &grad_out[p * nl * nf + l * nf..p * nl * nf + (l + 1) * nf];
+        let go = up.at(p, l);
         for k in 0..8 {
             let e = c.idx[k] as usize;
             if mark[e] != stamp {
@@ -431,26 +466,21 @@ fn scatter_level(
 /// touch order, which is the order `scatter_level` adds them in, so the gradient and the update
 /// are bit-identical to the two-pass path. Walking the table in address order instead of in
 /// first-touch order turns ~6 cache misses per touched entry into sequential sweeps.
-#[allow(clippy::too_many_arguments)]
 fn sorted_adam_level(
     c: &AdamCoef,
     level: &Level,
     l: usize,
-    nl: usize,
-    nf: usize,
-    xs: &[[f32; 3]],
-    grad_out: &[f32],
-    p: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
+    up: &Upstream,
+    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
 ) {
-    let touches = xs.len() * 8;
+    let nf = up.nf;
+    let touches = up.xs.len() * 8;
     // (entry << 32 | touch) pairs and each touch's contribution, in touch order.
     let mut keys = Vec::with_capacity(touches);
     let mut contrib = Vec::with_capacity(touches * nf);
-    for (pi, &x) in xs.iter().enumerate() {
+    for (pi, &x) in up.xs.iter().enumerate() {
         let cl = cell(level, x);
-        let go = &grad_out[pi * nl * nf + l * nf..pi * nl * nf + (l + 1) * nf];
+        let go = up.at(pi, l);
         for k in 0..8 {
             keys.push(((cl.idx[k] as u64) << 32) | (pi * 8 + k) as u64);
             for &g in go {
@@ -474,9 +504,7 @@ fn sorted_adam_level(
         }
         for (f, &gi) in g.iter().enumerate() {
             let j = e * nf + f;
-            m[j] = c.b1 * m[j] + (1.0 - c.b1) * gi;
-            v[j] = c.b2 * v[j] + (1.0 - c.b2) * gi * gi;
-            p[j] -= c.lr * (m[j] / c.c1) / ((v[j] / c.c2).sqrt() + c.eps);
+            c.apply(&mut p[j], &mut m[j], &mut v[j], gi);
         }
     }
 }
@@ -521,10 +549,7 @@ fn adam_level(
     for &e in list {
         let base = (e as usize - level.offset) * nf;
         for i in base..base + nf {
-            let gi = g[i];
-            m[i] = c.b1 * m[i] + (1.0 - c.b1) * gi;
-            v[i] = c.b2 * v[i] + (1.0 - c.b2) * gi * gi;
-            p[i] -= c.lr * (m[i] / c.c1) / ((v[i] / c.c2).sqrt() + c.eps);
+            c.apply(&mut p[i], &mut m[i], &mut v[i], g[i]);
             g[i] = 0.0;
         }
     }
