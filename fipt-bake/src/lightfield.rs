@@ -1,6 +1,7 @@
 //! The voxel surface light field L′ (paper §4.2, reference §2.2): the mean HDR value of the
 //! training pixels whose pixel-centre first hit falls in each voxel of a cube grid, queried at
-//! the nearest voxel (0 where empty and not filled, below). View-independent; the radiance cache of every later stage.
+//! the nearest voxel (0 where empty and not filled, below). View-independent; the radiance cache
+//! of every later stage.
 //!
 //! One refinement of the reference: each voxel keeps a separate mean per *side*, the dominant
 //! axis and sign of the hit's normal turned towards the viewer (6 sides). A voxel that holds two
