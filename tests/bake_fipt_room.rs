@@ -2,9 +2,10 @@
 //! and the baked shadings must reproduce the rendered images.
 
 use fipt_bake::Accel;
-use fipt_bake::bake::BakeConfig;
+use fipt_bake::integrators::bake::BakeConfig;
 use fipt_core::scene::{Dataset, LoadOptions};
-use fipt_train::{metrics, stage1};
+use fipt_train::metrics;
+use fipt_train::pipeline::bake;
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
@@ -25,7 +26,7 @@ fn gt_render_of_baked_shadings_matches_images() {
     )
     .unwrap()
     .bake;
-    let baked = stage1::bake(&accel, &ds.mesh, &ds.train, &cfg, false);
+    let baked = bake::bake(&accel, &ds.mesh, &ds.train, &cfg, false);
     let scores: Vec<_> = ds
         .train
         .views

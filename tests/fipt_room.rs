@@ -19,13 +19,13 @@ fn scene_dir() -> PathBuf {
 #[test]
 fn check_reports_clean_scene() {
     let r = fipt_train::check::check_scene(&scene_dir()).unwrap();
-    assert_eq!(r["views"], 56, "{r}");
-    assert_eq!(r["width"], 160);
-    assert_eq!(r["height"], 120);
-    assert_eq!(r["hit_fraction"].as_f64(), Some(1.0), "{r}");
-    assert!(r["part_agreement_min"].as_f64().unwrap() >= 0.99, "{r}");
-    assert!(r["semantic_agreement_min"].as_f64().unwrap() >= 0.99, "{r}");
-    assert!(r["problems"].as_array().unwrap().is_empty(), "{r}");
+    assert_eq!(r.views, 56, "{r:?}");
+    assert_eq!(r.width, 160);
+    assert_eq!(r.height, 120);
+    assert_eq!(r.hit_fraction, 1.0, "{r:?}");
+    assert!(r.part_agreement_min.unwrap() >= 0.99, "{r:?}");
+    assert!(r.semantic_agreement_min.unwrap() >= 0.99, "{r:?}");
+    assert!(r.problems.is_empty(), "{r:?}");
     // The three emitters are each seen (in some train view) according to Emit.
     let ds = Dataset::load(&scene_dir(), &LoadOptions::default()).unwrap();
     let meta = ds.meta.as_ref().unwrap();
@@ -41,8 +41,8 @@ fn check_reports_clean_scene() {
         });
         assert!(seen, "emitter {} never seen emitting", part.name);
     }
-    let ev = r["emitter_views"]["train"].as_array().unwrap();
-    assert!(ev.len() >= 7, "{r}");
+    let ev = r.emitter_views["train"].as_ref().unwrap();
+    assert!(ev.len() >= 7, "{r:?}");
 }
 
 /// Ray-cast hit positions match `train/Position` and triangle ids match `train/TriIndex`.

@@ -7,7 +7,7 @@
 //!
 //! Owns: the filter. Must not touch: how the shadings were estimated.
 
-use crate::raycast::ViewHits;
+use crate::accel::raycast::ViewHits;
 use glam::Vec3;
 use rayon::prelude::*;
 

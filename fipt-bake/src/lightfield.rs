@@ -24,41 +24,13 @@
 //! Storage is sparse: a coarse table of 8³-voxel bricks, with bricks allocated only where some
 //! voxel is occupied, so a query is two array reads.
 //!
-//! Owns: the bounding cube, voxelisation, accumulation and queries. Must not touch: tracing.
+//! Owns: voxelisation, accumulation and queries. Must not touch: tracing.
 
+use fipt_core::scene::SceneBox;
 use glam::Vec3;
 
 const BRICK: usize = 8;
 const EMPTY: u32 = u32::MAX;
-
-/// The reference's scene cube: the scalar min and max over all coordinates of all first hits,
-/// each scaled by 1.1 (`voxel_min = 1.1·min`, `voxel_max = 1.1·max`; the same box normalises
-/// positions for the hash grid).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct SceneBox {
-    pub min: f32,
-    pub max: f32,
-}
-
-impl SceneBox {
-    pub fn from_points<'a>(points: impl IntoIterator<Item = &'a Vec3>) -> Self {
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for p in points {
-            lo = lo.min(p.min_element());
-            hi = hi.max(p.max_element());
-        }
-        Self {
-            min: 1.1 * lo,
-            max: 1.1 * hi,
-        }
-    }
-
-    /// Position mapped to the unit cube (not clamped).
-    #[inline]
-    pub fn to_unit(&self, p: Vec3) -> Vec3 {
-        (p - Vec3::splat(self.min)) / (self.max - self.min)
-    }
-}
 
 /// L′ on a `res³` grid over a `SceneBox`.
 #[derive(Clone, Debug)]
@@ -336,8 +308,6 @@ mod tests {
         assert_eq!(lf.query(Vec3::new(0.92, 0.88, 0.9), up), Vec3::splat(5.0));
         assert_eq!(lf.query(Vec3::new(0.5, 0.5, 0.5), up), Vec3::ZERO);
         assert_eq!(lf.query(Vec3::new(0.999, 0.0, 0.5), up), Vec3::splat(7.0));
-        let sb = SceneBox::from_points(&[Vec3::new(0.0, 1.0, 2.0), Vec3::new(5.0, 2.7, 4.0)]);
-        assert_eq!(sb, SceneBox { min: 0.0, max: 5.5 });
     }
 
     /// A voxel between observed ones reads the pooled mean of its neighbours, side by side; a

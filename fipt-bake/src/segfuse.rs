@@ -4,7 +4,7 @@
 //!
 //! Owns: per-triangle label votes and re-rendered label maps. Must not touch: file IO.
 
-use crate::raycast::ViewHits;
+use crate::accel::raycast::ViewHits;
 use std::collections::HashMap;
 
 /// Label of a triangle no pixel voted for (and of missed pixels).

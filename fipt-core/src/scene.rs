@@ -9,8 +9,10 @@ pub mod image;
 pub mod mesh;
 pub mod meta;
 pub mod procedural;
+pub mod scene_box;
 
 pub use camera::Camera;
 pub use dataset::{Dataset, LoadOptions, MapKind, Split, View};
 pub use image::Image;
 pub use mesh::Mesh;
+pub use scene_box::SceneBox;

@@ -5,9 +5,11 @@
 use burn::tensor::{Device, Tensor, TensorData};
 use fipt_core::model::brdf::reflectances;
 use fipt_core::model::render::{Shadings, render};
-use fipt_core::model::step::{SHADING_DIM, SegMode};
+use fipt_core::model::step::SegMode;
 use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
+use fipt_core::scene::SceneBox;
+use fipt_core::shading::ShadingLayout;
 
 /// Scene extent in world units; positions in the unit cube are scaled by it.
 const EXTENT: f32 = 4.0;
@@ -55,7 +57,7 @@ fn dataset(n: usize, seed: u64) -> Batch {
         }
     }
     // Per-pixel shadings: positive, varying with the roughness level at a per-pixel rate.
-    let mut shadings = Vec::with_capacity(n * SHADING_DIM);
+    let mut shadings = Vec::with_capacity(n * ShadingLayout::DIM);
     for _ in 0..n {
         let ld = [0.2 + r.next_f32(), 0.2 + r.next_f32(), 0.2 + r.next_f32()];
         shadings.extend(ld);
@@ -80,7 +82,7 @@ fn dataset(n: usize, seed: u64) -> Batch {
         });
     let t = |v: Vec<f32>, c: usize| Tensor::<2>::from_data(TensorData::new(v, [n, c]), &dev);
     let (kd, ks) = reflectances(t(a, 3), t(m, 1));
-    let sh = Shadings::from_packed(t(shadings.clone(), SHADING_DIM));
+    let sh = Shadings::from_packed(t(shadings.clone(), ShadingLayout::DIM));
     let (pred, _) = render(kd, ks, t(s, 1), &sh);
     let mut gt: Vec<f32> = pred.try_into_vec_as::<f32>().unwrap();
     for (i, x) in x_unit.iter().enumerate() {
@@ -109,7 +111,9 @@ fn subset(b: &Batch, idx: &[usize]) -> Batch {
         x_world: idx.iter().map(|&i| b.x_world[i]).collect(),
         shadings: idx
             .iter()
-            .flat_map(|&i| b.shadings[i * SHADING_DIM..(i + 1) * SHADING_DIM].to_vec())
+            .flat_map(|&i| {
+                b.shadings[i * ShadingLayout::DIM..(i + 1) * ShadingLayout::DIM].to_vec()
+            })
             .collect(),
         gt: idx
             .iter()
@@ -137,7 +141,15 @@ fn stage2_recovers_known_brdf_and_emitter() {
                 .with_per_level_scale(1.5),
         ),
     );
-    let mut tr = Trainer::new(cfg, &Device::flex(), 5);
+    let mut tr = Trainer::new(
+        cfg,
+        SceneBox {
+            min: 0.0,
+            max: EXTENT,
+        },
+        &Device::flex(),
+        5,
+    );
     let mut rng = Rng::new(6, 0);
     let batch = 4096;
     let epochs = 30;
@@ -152,7 +164,7 @@ fn stage2_recovers_known_brdf_and_emitter() {
     }
     // Held-out points.
     let test = dataset(20_000, 2);
-    let mat = tr.material(&test.x_unit);
+    let mat = tr.model.material(&test.x_unit);
     let (mut kd_se, mut s_se, mut n) = (0.0f64, 0.0f64, 0usize);
     for (i, x) in test.x_unit.iter().enumerate() {
         if emitter(*x) {
@@ -168,7 +180,7 @@ fn stage2_recovers_known_brdf_and_emitter() {
     }
     let kd_psnr = psnr(kd_se / (3 * n) as f64);
     let s_psnr = psnr(s_se / n as f64);
-    let alpha = tr.alpha(&test.x_world);
+    let alpha = tr.model.alpha(&test.x_world);
     let iou = |threshold: f32| {
         let (mut inter, mut uni) = (0, 0);
         for (x, a) in test.x_unit.iter().zip(&alpha) {

@@ -9,7 +9,12 @@ use burn::tensor::{Device, Tensor, TensorData};
 use fipt_core::model::backend::BackendKind;
 use fipt_core::model::hashgrid::TableGrad;
 use fipt_core::model::hashgrid_tensor::{encode_tensor, table_tensor};
-use fipt_core::model::step::{SHADING_DIM, SegMode};
+use fipt_core::model::step::SegMode;
+use fipt_core::scene::SceneBox;
+use fipt_core::shading::ShadingLayout;
+
+/// Positions are already in the unit cube.
+const UNIT: SceneBox = SceneBox { min: 0.0, max: 1.0 };
 use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
 
@@ -50,7 +55,7 @@ fn batch(n: usize, seed: u64) -> Batch {
         b.x_world
             .push([4.0 * x[0] - 2.0, 2.7 * x[1], 3.0 * x[2] - 1.5]);
         b.shadings
-            .extend((0..SHADING_DIM).map(|k| 0.05 + r.next_f32() / (1.0 + k as f32 * 0.1)));
+            .extend((0..ShadingLayout::DIM).map(|k| 0.05 + r.next_f32() / (1.0 + k as f32 * 0.1)));
         let emitter = x[0] > 0.8 && x[1] > 0.8;
         let scale = if emitter { 20.0 } else { 1.0 };
         b.gt.extend((0..3).map(|_| scale * (0.05 + r.next_f32())));
@@ -63,16 +68,17 @@ fn batch(n: usize, seed: u64) -> Batch {
 #[test]
 fn trainer_step_matches_cpu_backend() {
     for mode in [SegMode::Part, SegMode::Semantic] {
-        let mut cpu = Trainer::new(config(), &Device::flex(), 11);
-        let mut gpu = Trainer::new(config(), &wgpu(), 11);
+        let mut cpu = Trainer::new(config(), UNIT, &Device::flex(), 11);
+        let mut gpu = Trainer::new(config(), UNIT, &wgpu(), 11);
         // A trained-looking table: outputs vary across pixels, so the L1 terms (|σ − σ̄|, …)
         // are away from their kinks, where sign(0 ± rounding) would differ between backends.
         let mut r = Rng::new(4, 4);
-        cpu.grid
+        cpu.model
+            .grid
             .table
             .iter_mut()
             .for_each(|v| *v = r.next_f32() - 0.5);
-        gpu.grid.table.clone_from(&cpu.grid.table);
+        gpu.model.grid.table.clone_from(&cpu.model.grid.table);
         let (p0, g0) = (cpu.net_params(), gpu.net_params());
         assert_eq!(
             p0, g0,
@@ -106,9 +112,16 @@ fn trainer_step_matches_cpu_backend() {
             assert_close(&format!("{mode:?} d/d parameter {i}"), w, c);
         }
         // The table gradient follows from the encoding gradient (host op on both).
-        let (mut tc, mut tg) = (TableGrad::new(&cpu.grid), TableGrad::new(&gpu.grid));
-        cpu.grid.backward_table(&b.x_unit, &gc.encoding, &mut tc);
-        gpu.grid.backward_table(&b.x_unit, &gg.encoding, &mut tg);
+        let (mut tc, mut tg) = (
+            TableGrad::new(&cpu.model.grid),
+            TableGrad::new(&gpu.model.grid),
+        );
+        cpu.model
+            .grid
+            .backward_table(&b.x_unit, &gc.encoding, &mut tc);
+        gpu.model
+            .grid
+            .backward_table(&b.x_unit, &gg.encoding, &mut tg);
         assert_close(&format!("{mode:?} d/d table"), &tg.values, &tc.values);
 
         // One Adam step. Its first update is −lr·g/(|g| + ε) per entry, so entries whose
@@ -153,8 +166,8 @@ fn trainer_step_matches_cpu_backend() {
         }
         assert_close(
             &format!("{mode:?} table after Adam"),
-            &gpu.grid.table,
-            &cpu.grid.table,
+            &gpu.model.grid.table,
+            &cpu.model.grid.table,
         );
         // And the next forward pass agrees.
         let (lc, lg) = (cpu.gradients(&b, mode).parts, gpu.gradients(&b, mode).parts);

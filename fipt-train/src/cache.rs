@@ -5,9 +5,10 @@
 //! Owns: cache keys and file formats of stage-1 outputs. Must not touch: how shadings are made.
 
 use anyhow::{Context, Result, bail};
-use fipt_bake::bake::{BakeConfig, SHADING_DIM};
+use fipt_bake::integrators::bake::BakeConfig;
 use fipt_core::io::{Fnv64, write_atomic};
 use fipt_core::scene::{Dataset, Image};
+use fipt_core::shading::ShadingLayout;
 use std::io::{Read, Write};
 use std::path::Path;
 
@@ -60,7 +61,7 @@ pub fn save(
         let mut head = Vec::new();
         head.extend_from_slice(MAGIC);
         head.extend_from_slice(&key.to_le_bytes());
-        for v in [shadings.len(), width, height, SHADING_DIM] {
+        for v in [shadings.len(), width, height, ShadingLayout::DIM] {
             head.extend_from_slice(&(v as u64).to_le_bytes());
         }
         w.write_all(&head).map_err(|e| e.to_string())?;
@@ -103,12 +104,12 @@ pub fn load(
             views as u64,
             width as u64,
             height as u64,
-            SHADING_DIM as u64,
+            ShadingLayout::DIM as u64,
         )
     {
         return Ok(None);
     }
-    let per_view = width * height * SHADING_DIM;
+    let per_view = width * height * ShadingLayout::DIM;
     let mut out = Vec::with_capacity(views);
     let mut buf = vec![0u8; per_view * 4];
     for k in 0..views {
@@ -135,41 +136,25 @@ pub fn write_exrs(dir: &Path, width: usize, height: usize, shadings: &[Vec<f32>]
         .par_iter()
         .enumerate()
         .try_for_each(|(k, s)| -> Result<()> {
-            let channel = |off: usize| {
+            let channel = |block: std::ops::Range<usize>| {
                 let data = (0..width * height)
-                    .flat_map(|p| s[p * SHADING_DIM + off..p * SHADING_DIM + off + 3].to_vec())
+                    .flat_map(|p| ShadingLayout::pixel(s, p)[block.clone()].to_vec())
                     .collect();
                 Image::from_data(width, height, 3, data)
             };
-            channel(0).write_exr(&dir.join("diffuse").join(format!("{k:03}.exr")))?;
-            for c in 0..2 {
-                for j in 0..6 {
-                    channel(3 + 18 * c + 3 * j)
+            channel(ShadingLayout::LD)
+                .write_exr(&dir.join("diffuse").join(format!("{k:03}.exr")))?;
+            for j in 0..ShadingLayout::LEVELS {
+                for (c, block) in [ShadingLayout::ls0(j), ShadingLayout::ls1(j)]
+                    .into_iter()
+                    .enumerate()
+                {
+                    channel(block)
                         .write_exr(&dir.join("specular").join(format!("{k:03}_{c}_{j}.exr")))?;
                 }
             }
             Ok(())
         })
-}
-
-/// Writes an RGB image as an 8-bit PNG of clip(x·scale, 0, 1)^(1/2.2), atomically.
-pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32], scale: f32) -> Result<()> {
-    let bytes: Vec<u8> = rgb
-        .iter()
-        .map(|&x| (crate::metrics::gamma(x * scale) * 255.0 + 0.5) as u8)
-        .collect();
-    write_atomic(path, |tmp| {
-        image::save_buffer_with_format(
-            tmp,
-            &bytes,
-            width as u32,
-            height as u32,
-            image::ColorType::Rgb8,
-            image::ImageFormat::Png,
-        )
-        .map_err(|e| e.to_string())
-    })?;
-    Ok(())
 }
 
 #[cfg(test)]
@@ -182,7 +167,7 @@ mod tests {
         let p = dir.join("shadings.bin");
         let s: Vec<Vec<f32>> = (0..2)
             .map(|k| {
-                (0..4 * 3 * SHADING_DIM)
+                (0..4 * 3 * ShadingLayout::DIM)
                     .map(|i| (i + k) as f32 * 0.5)
                     .collect()
             })

@@ -7,7 +7,8 @@
 use anyhow::Result;
 use fipt_bake::{Accel, ViewHits, cast_view, segfuse};
 use fipt_core::scene::{Dataset, LoadOptions, MapKind, Split};
-use serde_json::{Value, json};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// Agreement below this is reported as a problem.
@@ -85,8 +86,41 @@ fn renderer_agreement(split: &Split, hits: &[ViewHits]) -> (Option<f64>, Option<
     (pos, tri)
 }
 
-/// Runs every check and returns the JSON report.
-pub fn check_scene(scene: &Path) -> Result<Value> {
+/// Agreement of the tracer's first hits with the renderer's own maps, per split.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RendererAgreement {
+    /// Mean distance (m) between our hit positions and `Position/`.
+    pub position_error_mean_m: Option<f64>,
+    /// Share of pixels whose triangle id equals `TriIndex/`.
+    pub tri_index_agreement: Option<f64>,
+}
+
+/// What `fipt-train check` reports (`--json` prints it as is).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct CheckReport {
+    pub scene: String,
+    pub layout: String,
+    pub triangles: usize,
+    pub views: usize,
+    pub train_views: usize,
+    pub val_views: usize,
+    pub width: usize,
+    pub height: usize,
+    pub hit_fraction: f64,
+    /// Per split, per map folder: present or not.
+    pub maps: BTreeMap<String, BTreeMap<String, bool>>,
+    pub part_agreement_min: Option<f64>,
+    pub part_agreement_mean: Option<f64>,
+    pub semantic_agreement_min: Option<f64>,
+    pub semantic_agreement_mean: Option<f64>,
+    /// Per split: the views that show an emitter (None without `Emit/`).
+    pub emitter_views: BTreeMap<String, Option<Vec<usize>>>,
+    pub renderer_agreement: BTreeMap<String, RendererAgreement>,
+    pub problems: Vec<String>,
+}
+
+/// Runs every check.
+pub fn check_scene(scene: &Path) -> Result<CheckReport> {
     let ds = Dataset::load(scene, &LoadOptions::all_maps())?;
     let accel = Accel::build(&ds.mesh);
     let splits = ds.splits();
@@ -109,14 +143,16 @@ pub fn check_scene(scene: &Path) -> Result<Value> {
             total - hit
         ));
     }
-    let mut maps = serde_json::Map::new();
-    for s in &splits {
-        let present: serde_json::Map<String, Value> = MapKind::ALL
-            .iter()
-            .map(|k| (k.folder().to_string(), Value::Bool(s.has_map(*k))))
-            .collect();
-        maps.insert(s.name.clone(), Value::Object(present));
-    }
+    let maps = splits
+        .iter()
+        .map(|s| {
+            let present = MapKind::ALL
+                .iter()
+                .map(|k| (k.folder().to_string(), s.has_map(*k)))
+                .collect();
+            (s.name.clone(), present)
+        })
+        .collect();
     if !ds.train.has_map(MapKind::IndexMA) && !ds.train.has_map(MapKind::Segmentation) {
         problems.push(
             "no IndexMA/ or segmentation/ labels: the segmentation losses cannot be used".into(),
@@ -142,19 +178,16 @@ pub fn check_scene(scene: &Path) -> Result<Value> {
     };
     let part = agree(MapKind::IndexMA, "IndexMA");
     let sem = agree(MapKind::Segmentation, "segmentation");
-    let mut emitters = serde_json::Map::new();
-    for s in &splits {
-        emitters.insert(
-            s.name.clone(),
-            emitter_views(s).map_or(Value::Null, |v| json!(v)),
-        );
-    }
+    let seen: BTreeMap<String, Option<Vec<usize>>> = splits
+        .iter()
+        .map(|s| (s.name.clone(), emitter_views(s)))
+        .collect();
     if let Some(v) = emitter_views(&ds.train)
         && v.is_empty()
     {
         problems.push("no train view shows an emitter (Emit > 0 nowhere)".into());
     }
-    let mut renderer = serde_json::Map::new();
+    let mut renderer = BTreeMap::new();
     for (s, h) in splits.iter().zip(&hits) {
         let (pos, tri) = renderer_agreement(s, h);
         if let Some(e) = pos
@@ -167,80 +200,92 @@ pub fn check_scene(scene: &Path) -> Result<Value> {
         }
         renderer.insert(
             s.name.clone(),
-            json!({"position_error_mean_m": pos, "tri_index_agreement": tri}),
+            RendererAgreement {
+                position_error_mean_m: pos,
+                tri_index_agreement: tri,
+            },
         );
     }
     let views: usize = splits.iter().map(|s| s.views.len()).sum();
-    let opt = |a: &Option<(f64, f64, Vec<f64>)>, i: usize| {
-        a.as_ref().map(|t| if i == 0 { t.0 } else { t.1 })
-    };
-    Ok(json!({
-        "scene": scene.display().to_string(),
-        "layout": format!("{:?}", ds.layout),
-        "triangles": ds.mesh.num_triangles(),
-        "views": views,
-        "train_views": ds.train.views.len(),
-        "val_views": ds.val.as_ref().map_or(0, |v| v.views.len()),
-        "width": ds.train.width,
-        "height": ds.train.height,
-        "hit_fraction": hit_fraction,
-        "maps": maps,
-        "part_agreement_min": opt(&part, 0),
-        "part_agreement_mean": opt(&part, 1),
-        "semantic_agreement_min": opt(&sem, 0),
-        "semantic_agreement_mean": opt(&sem, 1),
-        "emitter_views": emitters,
-        "renderer_agreement": renderer,
-        "problems": problems,
-    }))
+    Ok(CheckReport {
+        scene: scene.display().to_string(),
+        layout: format!("{:?}", ds.layout),
+        triangles: ds.mesh.num_triangles(),
+        views,
+        train_views: ds.train.views.len(),
+        val_views: ds.val.as_ref().map_or(0, |v| v.views.len()),
+        width: ds.train.width,
+        height: ds.train.height,
+        hit_fraction,
+        maps,
+        part_agreement_min: part.as_ref().map(|t| t.0),
+        part_agreement_mean: part.as_ref().map(|t| t.1),
+        semantic_agreement_min: sem.as_ref().map(|t| t.0),
+        semantic_agreement_mean: sem.as_ref().map(|t| t.1),
+        emitter_views: seen,
+        renderer_agreement: renderer,
+        problems,
+    })
+}
+
+impl CheckReport {
+    /// The human-readable report.
+    pub fn print(&self) {
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.4}"));
+        println!("scene     {}", self.scene);
+        println!("layout    {}", self.layout);
+        println!(
+            "views     {} ({} train, {} val) at {}x{}, {} triangles",
+            self.views, self.train_views, self.val_views, self.width, self.height, self.triangles
+        );
+        println!("hits      {:.4} of pixel-centre rays", self.hit_fraction);
+        println!(
+            "IndexMA   agreement min {} mean {}",
+            f(self.part_agreement_min),
+            f(self.part_agreement_mean)
+        );
+        println!(
+            "semantic  agreement min {} mean {}",
+            f(self.semantic_agreement_min),
+            f(self.semantic_agreement_mean)
+        );
+        for (split, v) in &self.emitter_views {
+            match v {
+                Some(v) => println!("emitters  {split}: seen in views {v:?}"),
+                None => println!("emitters  {split}: no Emit/ maps"),
+            }
+        }
+        for (split, r) in &self.renderer_agreement {
+            println!(
+                "renderer  {split}: position error {} m, TriIndex agreement {}",
+                r.position_error_mean_m
+                    .map_or("-".into(), |x| format!("{x:.2e}")),
+                f(r.tri_index_agreement)
+            );
+        }
+        for (split, m) in &self.maps {
+            let have: Vec<&str> = m
+                .iter()
+                .filter(|(_, v)| **v)
+                .map(|(k, _)| k.as_str())
+                .collect();
+            println!("maps      {split}: {}", have.join(" "));
+        }
+        if self.problems.is_empty() {
+            println!("problems  none");
+        }
+        for p in &self.problems {
+            println!("problem   {p}");
+        }
+    }
 }
 
 pub fn run(scene: &Path, as_json: bool) -> Result<()> {
     let r = check_scene(scene)?;
     if as_json {
         println!("{}", serde_json::to_string_pretty(&r)?);
-        return Ok(());
-    }
-    println!("scene     {}", r["scene"].as_str().unwrap_or(""));
-    println!("layout    {}", r["layout"].as_str().unwrap_or(""));
-    println!(
-        "views     {} ({} train, {} val) at {}x{}, {} triangles",
-        r["views"], r["train_views"], r["val_views"], r["width"], r["height"], r["triangles"]
-    );
-    println!(
-        "hits      {:.4} of pixel-centre rays",
-        r["hit_fraction"].as_f64().unwrap_or(0.0)
-    );
-    let f = |v: &Value| v.as_f64().map_or("-".to_string(), |x| format!("{:.4}", x));
-    println!(
-        "IndexMA   agreement min {} mean {}",
-        f(&r["part_agreement_min"]),
-        f(&r["part_agreement_mean"])
-    );
-    println!(
-        "semantic  agreement min {} mean {}",
-        f(&r["semantic_agreement_min"]),
-        f(&r["semantic_agreement_mean"])
-    );
-    println!("emitters  seen in views {}", r["emitter_views"]);
-    println!("renderer  {}", r["renderer_agreement"]);
-    for (split, m) in r["maps"].as_object().into_iter().flatten() {
-        let have: Vec<&str> = m
-            .as_object()
-            .into_iter()
-            .flatten()
-            .filter(|(_, v)| v.as_bool() == Some(true))
-            .map(|(k, _)| k.as_str())
-            .collect();
-        println!("maps      {split}: {}", have.join(" "));
-    }
-    let problems = r["problems"].as_array().cloned().unwrap_or_default();
-    if problems.is_empty() {
-        println!("problems  none");
     } else {
-        for p in problems {
-            println!("problem   {}", p.as_str().unwrap_or(""));
-        }
+        r.print();
     }
     Ok(())
 }

@@ -5,7 +5,8 @@
 //! touch: what the stages do with it.
 
 use anyhow::{Context, Result, bail};
-use fipt_bake::bake::BakeConfig;
+use fipt_bake::integrators::bake::BakeConfig;
+use fipt_core::model::hashgrid::MaxResolution;
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{
     BackendKind, EmissionMaskConfig, HashGridConfig, MaterialFieldConfig, TrainConfig,
@@ -48,72 +49,6 @@ pub enum SegChoice {
     None,
 }
 
-/// `"auto"`, `"none"` or a number.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum MaxResolution {
-    Keyword(ResolutionKeyword),
-    Fixed(f64),
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ResolutionKeyword {
-    /// One grid cell per median pixel footprint of the training views.
-    Auto,
-    /// No cap: all `levels` levels.
-    None,
-}
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct GridSection {
-    pub levels: usize,
-    pub features: usize,
-    pub log2_table: u32,
-    pub base_resolution: f64,
-    pub per_level_scale: f64,
-    /// Finest grid resolution (cells per unit-cube side) kept: levels finer than this are
-    /// dropped. `"none"` (the reference) keeps all. `"auto"` puts it at one cell per median
-    /// pixel footprint: finer levels see at most one pixel per cell, so base colour there can
-    /// absorb each pixel's residual. On fipt-room `"auto"` helped while L′ had sampling holes
-    /// (darker shadings, blotchy k_d); with the holes filled it only costs texture detail: k_d
-    /// 24.2 dB against 27.1 dB with `"none"` (reference schedule, seed 0).
-    pub max_resolution: MaxResolution,
-}
-
-impl GridSection {
-    /// The levels kept for a scene whose median pixel footprint is `footprint` (unit-cube
-    /// units): those with base·scale^l ≤ the maximum resolution, at least one.
-    pub fn levels_for(&self, footprint: f64) -> usize {
-        let max = match self.max_resolution {
-            MaxResolution::Keyword(ResolutionKeyword::None) => return self.levels,
-            MaxResolution::Keyword(ResolutionKeyword::Auto) => 1.0 / footprint,
-            MaxResolution::Fixed(r) => r,
-        };
-        let kept = ((max / self.base_resolution).ln() / self.per_level_scale.ln()).floor() + 1.0;
-        if kept.is_finite() {
-            (kept.max(1.0) as usize).min(self.levels)
-        } else {
-            self.levels
-        }
-    }
-}
-
-impl Default for GridSection {
-    /// Reference: 32 levels, 2 features, 2^19 entries, base 16 over [-1,1] (= 32 over [0,1]), scale 1.3.
-    fn default() -> Self {
-        Self {
-            levels: 32,
-            features: 2,
-            log2_table: 19,
-            base_resolution: 32.0,
-            per_level_scale: 1.3,
-            max_resolution: MaxResolution::Keyword(ResolutionKeyword::None),
-        }
-    }
-}
-
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainSection {
@@ -126,7 +61,8 @@ pub struct TrainSection {
     pub lambda_part: f32,
     pub lambda_sem: f32,
     pub sem_partners: usize,
-    pub grid: GridSection,
+    /// The hash grid (one schema with the model's `HashGridConfig`).
+    pub grid: HashGridConfig,
     pub mlp_hidden: usize,
     pub mlp_layers: usize,
     pub emission_freqs: usize,
@@ -146,7 +82,7 @@ impl Default for TrainSection {
             lambda_part: 5e-3,
             lambda_sem: 1e-3,
             sem_partners: 1024,
-            grid: GridSection::default(),
+            grid: HashGridConfig::default(),
             mlp_hidden: 64,
             mlp_layers: 2,
             emission_freqs: 10,
@@ -157,9 +93,8 @@ impl Default for TrainSection {
 }
 
 impl TrainSection {
-    /// The model's burn config, with `levels` hash-grid levels (see `GridSection::levels_for`).
+    /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`).
     pub fn model_config(&self, levels: usize) -> TrainConfig {
-        let g = &self.grid;
         TrainConfig::new()
             .with_lr(self.lr)
             .with_lambda_e(self.lambda_e)
@@ -169,14 +104,7 @@ impl TrainSection {
             .with_sem_partners(self.sem_partners)
             .with_material(
                 MaterialFieldConfig::new()
-                    .with_grid(
-                        HashGridConfig::new()
-                            .with_levels(levels)
-                            .with_features(g.features)
-                            .with_log2_table(g.log2_table)
-                            .with_base_resolution(g.base_resolution)
-                            .with_per_level_scale(g.per_level_scale),
-                    )
+                    .with_grid(self.grid.clone().with_levels(levels))
                     .with_hidden(self.mlp_hidden)
                     .with_hidden_layers(self.mlp_layers),
             )

@@ -1,16 +1,15 @@
-//! fipt-train as a library: the pipeline stages, tools and reports behind the `fipt-train` CLI,
-//! exposed so integration tests and benches call them directly.
+//! fipt-train as a library: the pipeline (`pipeline`, one module per stage), the tools around
+//! it (`check`, `bench`), the config schema, caches, reports and output writers, exposed so
+//! integration tests and benches call them directly.
 //!
-//! Owns: the dataset doctor (`check`), benchmarks (`bench`). Must not touch: model maths.
+//! Must not touch: model maths (fipt-core) or ray tracing (fipt-bake).
 
-pub mod bake_cmd;
 pub mod bench;
 pub mod cache;
 pub mod check;
 pub mod config;
-pub mod eval;
-pub mod maps;
 pub mod metrics;
-pub mod run_cmd;
-pub mod stage1;
-pub mod stage2;
+pub mod output;
+pub mod pipeline;
+pub mod progress;
+pub mod report;

@@ -1,9 +1,9 @@
 //! fipt-train: the fipt command line.
 //!
-//! Owns: argument parsing and dispatch to the pipeline stages and tools. Must not touch: the
-//! maths of any stage (that lives in fipt-core and fipt-bake).
+//! Owns: argument parsing, dispatch and printing. Must not touch: the work of any command (that
+//! lives in the library: `pipeline`, `check`, `bench`).
 
-use fipt_train::{bench, check};
+use fipt_train::{bench, check, pipeline};
 
 use clap::{Parser, Subcommand};
 use fipt_core::model::BackendKind;
@@ -27,7 +27,7 @@ struct JobArgs {
     scene: PathBuf,
     #[arg(long)]
     out: PathBuf,
-    /// Config file (JSON); defaults to the reference constants.
+    /// Config file (JSON); defaults to `configs/default.json`'s values.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Overrides the config's seed.
@@ -84,8 +84,11 @@ enum Cmd {
         scene: PathBuf,
         #[arg(long)]
         out: PathBuf,
+        /// Print eval.json to stdout instead of the tables.
+        #[arg(long)]
+        json: bool,
     },
-    /// Print the default configuration (the reference constants) as JSON.
+    /// Print the default configuration (`configs/default.json`) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
     Bench {
@@ -137,11 +140,11 @@ fn main() {
     let res = match cli.cmd {
         Cmd::Check { scene, json } => check::run(&scene, json),
         Cmd::Bake { job, json } => job.config().and_then(|cfg| {
-            let r = fipt_train::bake_cmd::run(&job.scene, &job.out, &cfg, json)?;
+            let r = pipeline::bake_job::bake_job(&job.scene, &job.out, &cfg, json)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {
-                print_bake_summary(&r);
+                r.print();
             }
             Ok(())
         }),
@@ -149,13 +152,20 @@ fn main() {
             if let Some(b) = backend {
                 cfg.backend = b;
             }
-            let r = fipt_train::run_cmd::run(&job.scene, &job.out, &cfg, json)?;
+            let r = pipeline::run(&job.scene, &job.out, &cfg, json)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             }
             Ok(())
         }),
-        Cmd::Eval { scene, out } => fipt_train::run_cmd::eval(&scene, &out).map(|_| ()),
+        Cmd::Eval { scene, out, json } => pipeline::eval(&scene, &out).and_then(|r| {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                fipt_train::report::print_metrics(&r.metrics, r.parts.as_deref());
+            }
+            Ok(())
+        }),
         Cmd::DefaultConfig => serde_json::to_string_pretty(&fipt_train::config::Config::default())
             .map(|s| println!("{s}"))
             .map_err(Into::into),
@@ -185,33 +195,5 @@ fn main() {
     if let Err(e) = res {
         eprintln!("error: {e:#}");
         std::process::exit(1);
-    }
-}
-
-fn print_bake_summary(r: &serde_json::Value) {
-    println!(
-        "baked {} views in {:.1} s{} ({} secondary rays, {:.2} M rays/s); L' {} voxels, {:.1} MB; peak RSS {:.0} MB",
-        r["views"],
-        r["bake_s"].as_f64().unwrap_or(0.0),
-        if r["from_cache"] == true {
-            " (from cache)"
-        } else {
-            ""
-        },
-        r["secondary_rays"],
-        r["rays_per_s"].as_f64().unwrap_or(0.0) / 1e6,
-        r["light_field"]["occupied_voxels"],
-        r["light_field"]["memory_mb"].as_f64().unwrap_or(0.0),
-        r["peak_rss_mb"].as_f64().unwrap_or(0.0)
-    );
-    if let Some(g) = r["gt_render_psnr"].as_object() {
-        println!(
-            "factorised render with GT materials vs photos: all {:.2} dB, diffuse {:.2} dB, specular {:.2} dB, worst view {} at {:.2} dB",
-            g["mean_all_db"].as_f64().unwrap_or(0.0),
-            g["mean_diffuse_db"].as_f64().unwrap_or(0.0),
-            g["mean_specular_db"].as_f64().unwrap_or(0.0),
-            g["worst_view"],
-            g["worst_view_db"].as_f64().unwrap_or(0.0)
-        );
     }
 }

@@ -37,7 +37,7 @@ pub const GT_RENDER_MAPS: [MapKind; 5] = [
 ];
 
 /// PSNR of the factorised render with the ground-truth materials against `Image`.
-#[derive(Clone, Copy, Debug, serde::Serialize)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct GtRenderPsnr {
     pub all: f64,
     /// Pixels with ground-truth σ ≥ 0.6.

@@ -8,6 +8,7 @@ mod frame;
 mod ggx;
 mod sample;
 
+use crate::shading::ShadingLayout;
 pub use frame::Frame;
 pub use ggx::{fresnel_split, g_schlick_over, ggx_d, reflectances, specular_weights};
 pub use sample::{Brdf, cosine_pdf, directional_albedo_quadrature, sample_cosine, sample_ggx_h};
@@ -47,10 +48,10 @@ pub fn factorised_render(kd: [f32; 3], ks: [f32; 3], sigma: f32, shading: &[f32]
     for c in 0..3 {
         let (mut s0, mut s1) = (0.0, 0.0);
         for (j, wj) in w.iter().enumerate() {
-            s0 += wj * shading[3 + 3 * j + c];
-            s1 += wj * shading[3 + 3 * ROUGHNESS_LEVELS + 3 * j + c];
+            s0 += wj * shading[ShadingLayout::ls0(j).start + c];
+            s1 += wj * shading[ShadingLayout::ls1(j).start + c];
         }
-        out[c] = kd[c] * shading[c] + ks[c] * s0 + s1;
+        out[c] = kd[c] * shading[ShadingLayout::LD.start + c] + ks[c] * s0 + s1;
     }
     out
 }

@@ -6,6 +6,7 @@
 pub mod backend;
 pub mod brdf;
 pub mod fields;
+pub mod fipt_model;
 pub mod gather;
 pub mod hashgrid;
 pub mod hashgrid_tensor;
@@ -16,6 +17,7 @@ pub mod step;
 
 pub use backend::BackendKind;
 pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};
+pub use fipt_model::{FiptModel, MaterialValues, ModelSpec, Nets};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use step::{Batch, LossParts, TrainConfig, Trainer};
 

@@ -5,6 +5,7 @@
 //! Owns: shading interpolation and compositing. Must not touch: how shadings are made.
 
 use crate::brdf::{ROUGHNESS_LEVELS, SIGMA_MIN};
+use crate::shading::ShadingLayout as S;
 use burn::tensor::activation::relu;
 use burn::tensor::{Tensor, TensorData};
 
@@ -17,15 +18,15 @@ pub struct Shadings {
 }
 
 impl Shadings {
-    /// Splits a packed [N, 39] tensor (L_d 3, L_s0 18, L_s1 18 per pixel).
+    /// Splits a packed [N, `ShadingLayout::DIM`] tensor into its blocks.
     pub fn from_packed(p: Tensor<2>) -> Self {
         let [n, c] = p.dims();
-        assert_eq!(c, 3 + 6 * ROUGHNESS_LEVELS);
-        let l = ROUGHNESS_LEVELS;
+        assert_eq!(c, S::DIM);
+        let l = S::LEVELS;
         Self {
-            ld: p.clone().slice([0..n, 0..3]),
-            ls0: p.clone().slice([0..n, 3..3 + 3 * l]).reshape([n, l, 3]),
-            ls1: p.slice([0..n, 3 + 3 * l..3 + 6 * l]).reshape([n, l, 3]),
+            ld: p.clone().slice([0..n, S::LD]),
+            ls0: p.clone().slice([0..n, S::LS0]).reshape([n, l, 3]),
+            ls1: p.slice([0..n, S::LS1]).reshape([n, l, 3]),
         }
     }
 }

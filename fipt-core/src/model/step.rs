@@ -6,23 +6,20 @@
 //! Owns: `TrainConfig`, `Batch`, `Trainer::step`. Must not touch: pixel sampling, data loading.
 
 use super::brdf::reflectances;
-use super::fields::{
-    EmissionMask, EmissionMaskConfig, MaterialFieldConfig, Mlp, alpha_from_raw, decode_material,
-};
-use super::hashgrid::{HashGrid, TableAdam, TableGrad};
+use super::fields::{EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material};
+use super::fipt_model::{FiptModel, ModelSpec};
+use super::hashgrid::{TableAdam, TableGrad};
 use super::loss;
 use super::render::{Shadings, composite, render};
-use crate::brdf::ROUGHNESS_LEVELS;
 use crate::rng::Rng;
+use crate::scene::SceneBox;
+use crate::shading::ShadingLayout;
 use burn::config::Config;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
 use std::time::Instant;
-
-/// Packed shading values per pixel: L_d (3), L_s0 (6·3), L_s1 (6·3).
-pub const SHADING_DIM: usize = 3 + 6 * ROUGHNESS_LEVELS;
 
 /// Which segmentation loss to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -80,7 +77,7 @@ pub struct Batch {
     pub x_unit: Vec<[f32; 3]>,
     /// First-hit positions in world space (emission-mask input).
     pub x_world: Vec<[f32; 3]>,
-    /// `SHADING_DIM` values per pixel.
+    /// `ShadingLayout::DIM` values per pixel.
     pub shadings: Vec<f32>,
     /// Ground-truth HDR radiance, 3 per pixel.
     pub gt: Vec<f32>,
@@ -99,7 +96,7 @@ impl Batch {
 }
 
 /// Loss values of one step.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct LossParts {
     pub total: f32,
     pub color: f32,
@@ -108,20 +105,13 @@ pub struct LossParts {
     pub seg: f32,
 }
 
-/// The optimised networks (everything but the host hash table).
-#[derive(Module, Debug)]
-pub struct Nets {
-    pub material: Mlp,
-    pub emission: EmissionMask,
-}
-
-/// Stage-2 optimiser state.
+/// The fit: a `FiptModel` on an autodiff device and its optimisers.
 pub struct Trainer {
     pub cfg: TrainConfig,
     /// Autodiff device.
     pub device: Device,
-    pub grid: HashGrid,
-    pub nets: Nets,
+    /// The model being fitted.
+    pub model: FiptModel,
     optim: ModuleOptimizer,
     grid_grad: TableGrad,
     grid_adam: TableAdam,
@@ -134,7 +124,7 @@ pub struct Trainer {
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct StepProfile {
     /// Hash-grid encoding on the host.
     pub encode: f64,
@@ -169,27 +159,28 @@ fn backward(enc: Tensor<2>, total: Tensor<1>) -> (burn::tensor::Gradients, Vec<f
 }
 
 impl Trainer {
-    /// A fresh model on `device` (a plain device; autodiff is added here), seeded by `seed`.
-    pub fn new(cfg: TrainConfig, device: &Device, seed: u64) -> Self {
+    /// A fresh model over `scene_box` on `device` (a plain device; autodiff is added here),
+    /// seeded by `seed`.
+    pub fn new(cfg: TrainConfig, scene_box: SceneBox, device: &Device, seed: u64) -> Self {
         device.seed(seed);
         let ad = device.clone().autodiff();
-        let field = cfg.material.init(&ad, seed);
-        let emission = cfg.emission.init(&ad, seed);
+        let spec = ModelSpec {
+            material: cfg.material.clone(),
+            emission: cfg.emission.clone(),
+            scene_box,
+        };
+        let model = FiptModel::init(spec, &ad, seed);
         let optim = AdamConfig::new()
             .with_beta_1(cfg.beta1)
             .with_beta_2(cfg.beta2)
             .with_epsilon(cfg.eps)
             .init();
-        let grid_grad = TableGrad::new(&field.grid);
-        let grid_adam = TableAdam::new(&field.grid, cfg.beta1, cfg.beta2, cfg.eps);
+        let grid_grad = TableGrad::new(&model.grid);
+        let grid_adam = TableAdam::new(&model.grid, cfg.beta1, cfg.beta2, cfg.eps);
         Self {
             cfg,
             device: ad,
-            grid: field.grid,
-            nets: Nets {
-                material: field.mlp,
-                emission,
-            },
+            model,
             optim,
             grid_grad,
             grid_adam,
@@ -203,15 +194,20 @@ impl Trainer {
     fn forward(&mut self, batch: &Batch, mode: SegMode) -> (Tensor<2>, Tensor<1>, LossParts) {
         let n = batch.len();
         let dev = self.device.clone();
-        let d = self.grid.output_dim();
+        let d = self.model.grid.output_dim();
         let t0 = Instant::now();
-        let enc = tensor2(self.grid.encode(&batch.x_unit), [n, d], &dev).require_grad();
+        let enc = tensor2(self.model.grid.encode(&batch.x_unit), [n, d], &dev).require_grad();
         let t1 = Instant::now();
-        let mat = decode_material(self.nets.material.forward(enc.clone()));
+        let mat = decode_material(self.model.nets.material.forward(enc.clone()));
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
-        let sh = Shadings::from_packed(tensor2(batch.shadings.clone(), [n, SHADING_DIM], &dev));
+        let sh = Shadings::from_packed(tensor2(
+            batch.shadings.clone(),
+            [n, ShadingLayout::DIM],
+            &dev,
+        ));
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
         let raw = self
+            .model
             .nets
             .emission
             .raw(tensor2(flat3(&batch.x_world), [n, 3], &dev));
@@ -241,16 +237,18 @@ impl Trainer {
         let t2 = Instant::now();
         let (grads, g_enc) = backward(enc, total);
         let t3 = Instant::now();
-        self.grid.backward_adam(
+        let lr = self.cfg.lr as f32;
+        let m = &mut self.model;
+        m.grid.backward_adam(
             &batch.x_unit,
             &g_enc,
             &mut self.grid_grad,
             &mut self.grid_adam,
-            self.cfg.lr as f32,
+            lr,
         );
         let t4 = Instant::now();
-        let gp = GradientsParams::from_grads(grads, &self.nets);
-        self.nets = self.optim.step(self.cfg.lr, self.nets.clone(), gp);
+        let gp = GradientsParams::from_grads(grads, &self.model.nets);
+        self.model.nets = self.optim.step(self.cfg.lr, self.model.nets.clone(), gp);
         let t5 = Instant::now();
         let p = &mut self.profile;
         p.backward += (t3 - t2).as_secs_f64();
@@ -271,7 +269,7 @@ impl Trainer {
             grads: &grads,
             out: Vec::new(),
         };
-        self.nets.visit(&mut visitor);
+        self.model.nets.visit(&mut visitor);
         StepGradients {
             parts,
             encoding,
@@ -282,7 +280,7 @@ impl Trainer {
     /// Every network parameter in module order, as host vectors.
     pub fn net_params(&self) -> Vec<Vec<f32>> {
         let mut visitor = ParamValues { out: Vec::new() };
-        self.nets.visit(&mut visitor);
+        self.model.nets.visit(&mut visitor);
         visitor.out
     }
 
@@ -383,73 +381,5 @@ impl ModuleVisitor for ParamValues {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         self.out
             .push(param.val().try_into_vec_as::<f32>().expect("f32 parameter"));
-    }
-}
-
-/// Host-side material values: base colour (3 per point), roughness and metallic (1 per point).
-#[derive(Clone, Debug, Default)]
-pub struct MaterialValues {
-    pub a: Vec<f32>,
-    pub sigma: Vec<f32>,
-    pub metallic: Vec<f32>,
-}
-
-/// Points per inference batch.
-const INFER_CHUNK: usize = 1 << 16;
-
-impl Trainer {
-    /// The material field at unit-cube points (inference, batched, no autodiff).
-    pub fn material(&self, x_unit: &[[f32; 3]]) -> MaterialValues {
-        let mlp = self.nets.material.valid();
-        let dev = self.device.clone().inner();
-        let mut out = MaterialValues::default();
-        for chunk in x_unit.chunks(INFER_CHUNK) {
-            let n = chunk.len();
-            let enc = tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev);
-            let m = decode_material(mlp.forward(enc));
-            out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));
-            out.sigma
-                .extend(m.sigma.try_into_vec_as::<f32>().expect("f32"));
-            out.metallic
-                .extend(m.metallic.try_into_vec_as::<f32>().expect("f32"));
-        }
-        out
-    }
-
-    /// The emission mask α at world points (inference, batched).
-    pub fn alpha(&self, x_world: &[[f32; 3]]) -> Vec<f32> {
-        let mask = self.nets.emission.valid();
-        let dev = self.device.clone().inner();
-        let mut out = Vec::with_capacity(x_world.len());
-        for chunk in x_world.chunks(INFER_CHUNK) {
-            let x = tensor2(flat3(chunk), [chunk.len(), 3], &dev);
-            out.extend(
-                alpha_from_raw(mask.raw(x))
-                    .try_into_vec_as::<f32>()
-                    .expect("f32"),
-            );
-        }
-        out
-    }
-}
-
-impl Trainer {
-    /// Saves the trained fields: the networks as a burn record (`fields.bpk`) and the hash
-    /// table as raw little-endian f32 (`hashgrid.bin`), each written to a temporary name first.
-    pub fn save(&self, dir: &std::path::Path) -> Result<(), String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let tmp = dir.join("fields.tmp.bpk");
-        self.nets
-            .clone()
-            .save_file(&tmp)
-            .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
-        std::fs::rename(&tmp, dir.join("fields.bpk")).map_err(|e| e.to_string())?;
-        let bytes: Vec<u8> = self
-            .grid
-            .table
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
-        crate::io::write_bytes_atomic(&dir.join("hashgrid.bin"), &bytes).map_err(|e| e.to_string())
     }
 }

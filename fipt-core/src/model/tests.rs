@@ -6,6 +6,7 @@ use super::loss;
 use super::render::{Shadings, composite, render, roughness_weights};
 use crate::brdf as sb;
 use crate::rng::Rng;
+use crate::shading::ShadingLayout;
 use burn::tensor::{Device, Tensor, TensorData};
 use glam::Vec3;
 
@@ -186,7 +187,7 @@ fn render_gradients_including_roughness_lerp() {
         .iter()
         .map(|u| 0.02 + 0.196 * ((u * 5.0).floor() + 0.2 + 0.6 * (u * 5.0).fract()))
         .collect();
-    let sh = uniform(n * 39, 0.0, 2.0, 14);
+    let sh = uniform(n * ShadingLayout::DIM, 0.0, 2.0, 14);
     let alpha = uniform(n, 0.0, 1.0, 15);
     let gt = uniform(3 * n, 0.0, 3.0, 16);
     grad_check(
@@ -195,7 +196,7 @@ fn render_gradients_including_roughness_lerp() {
             (kd, [n, 3]),
             (ks, [n, 3]),
             (s, [n, 1]),
-            (sh, [n, 39]),
+            (sh, [n, ShadingLayout::DIM]),
             (alpha, [n, 1]),
         ],
         &|x| {

@@ -1,18 +1,22 @@
-//! `fipt-train bake`: stage 1 alone, with cache, EXR/PNG outputs and, where the scene has
+//! `fipt-train bake`: the bake alone, with cache, EXR/PNG outputs and, where the scene has
 //! ground-truth materials, the check that the factorised render reproduces the photos.
 //!
 //! Owns: the command's outputs (`bake.json`, previews). Must not touch: the estimators.
 
+use super::bake;
 use crate::config::Config;
-use crate::{cache, metrics, stage1};
+use crate::output::{write_json, write_png};
+use crate::report::{BakeReport, GtRenderSummary, LightFieldReport};
+use crate::{cache, metrics};
 use anyhow::Result;
 use fipt_bake::Accel;
 use fipt_core::scene::{Dataset, LoadOptions};
-use serde_json::json;
+use fipt_core::shading::ShadingLayout;
 use std::path::Path;
 use std::time::Instant;
 
-pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_json::Value> {
+/// Bakes the scene's training views into `out` and writes `out/bake.json`.
+pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<BakeReport> {
     let t0 = Instant::now();
     let opts = LoadOptions {
         maps: metrics::GT_RENDER_MAPS.to_vec(),
@@ -23,16 +27,16 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
     let mut bake_cfg = cfg.bake.clone();
     bake_cfg.seed = cfg.seed;
     let t1 = Instant::now();
-    let (baked, cached) = stage1::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
+    let (baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
     let bake_s = t1.elapsed().as_secs_f64();
     let (w, h) = (ds.train.width, ds.train.height);
     let shading_dir = out.join("shading");
     cache::write_exrs(&shading_dir, w, h, &baked.shadings)?;
     for (k, s) in baked.shadings.iter().enumerate() {
         let ld: Vec<f32> = (0..w * h)
-            .flat_map(|p| s[p * 39..p * 39 + 3].to_vec())
+            .flat_map(|p| ShadingLayout::pixel(s, p)[ShadingLayout::LD].to_vec())
             .collect();
-        cache::write_png(
+        write_png(
             &shading_dir
                 .join("preview")
                 .join(format!("{k:03}_diffuse.png")),
@@ -66,21 +70,21 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
                 .zip(&view.image.data)
                 .map(|(a, b)| ((metrics::gamma(*a) - metrics::gamma(*b)).abs() * 4.0).powf(2.2))
                 .collect();
-            cache::write_png(
+            write_png(
                 &out.join(format!("bake_error_view{worst:03}.png")),
                 w,
                 h,
                 &err,
                 1.0,
             )?;
-            cache::write_png(
+            write_png(
                 &out.join(format!("bake_render_view{worst:03}.png")),
                 w,
                 h,
                 &pred,
                 1.0,
             )?;
-            cache::write_png(
+            write_png(
                 &out.join(format!("bake_photo_view{worst:03}.png")),
                 w,
                 h,
@@ -88,32 +92,36 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<serde_
                 1.0,
             )?;
         }
-        Some(json!({
-            "mean_all_db": mean(&|x| Some(x.all)), "mean_diffuse_db": mean(&|x| x.diffuse),
-            "mean_specular_db": mean(&|x| x.specular), "worst_view": worst, "worst_view_db": s[worst].all,
-            "per_view": s,
-        }))
+        Some(GtRenderSummary {
+            mean_all_db: mean(&|x| Some(x.all)).unwrap_or(f64::NAN),
+            mean_diffuse_db: mean(&|x| x.diffuse),
+            mean_specular_db: mean(&|x| x.specular),
+            worst_view: worst,
+            worst_view_db: s[worst].all,
+            per_view: s,
+        })
     } else {
         None
     };
-    let rays = ds.train.views.len() * w * h * bake_cfg.samples.rays_per_pixel();
-    let report = json!({
-        "scene": scene.display().to_string(),
-        "views": ds.train.views.len(),
-        "from_cache": cached,
-        "bake_s": bake_s,
-        "total_s": t0.elapsed().as_secs_f64(),
-        "secondary_rays": rays,
-        "rays_per_s": if cached { None } else { Some(rays as f64 / bake_s) },
-        "light_field": {"res": bake_cfg.voxel_res, "occupied_voxels": baked.light_field.occupied(), "filled_voxels": baked.light_field.filled(),
-            "memory_mb": baked.light_field.memory_bytes() as f64 / 1048576.0},
-        "peak_rss_mb": fipt_core::io::peak_rss_mb(),
-        "gt_render_psnr": gt,
-        "config": bake_cfg,
-    });
-    fipt_core::io::write_bytes_atomic(
-        &out.join("bake.json"),
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
+    let rays = (!cached).then_some(baked.rays);
+    let report = BakeReport {
+        scene: scene.display().to_string(),
+        views: ds.train.views.len(),
+        from_cache: cached,
+        bake_s,
+        total_s: t0.elapsed().as_secs_f64(),
+        secondary_rays: rays,
+        rays_per_s: rays.map(|r| r as f64 / bake_s),
+        light_field: LightFieldReport {
+            res: bake_cfg.voxel_res,
+            occupied_voxels: baked.light_field.occupied(),
+            filled_voxels: baked.light_field.filled(),
+            memory_mb: baked.light_field.memory_bytes() as f64 / 1048576.0,
+        },
+        peak_rss_mb: fipt_core::io::peak_rss_mb(),
+        gt_render_psnr: gt,
+        config: bake_cfg,
+    };
+    write_json(&out.join("bake.json"), &report)?;
     Ok(report)
 }

@@ -9,15 +9,13 @@
 //! filter (see `filter`), tensors.
 
 use crate::accel::Accel;
+use crate::accel::raycast::ViewHits;
 use crate::lightfield::LightField;
-use crate::raycast::ViewHits;
 use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
 use fipt_core::rng::Rng;
+use fipt_core::shading::ShadingLayout;
 use glam::Vec3;
 use rayon::prelude::*;
-
-/// Values per pixel: L_d (3), L_s0 (6 levels × 3), L_s1 (6 × 3).
-pub const SHADING_DIM: usize = 3 + 6 * ROUGHNESS_LEVELS;
 
 /// Secondary-ray offset along the new direction (Mitsuba's RayEpsilon, reference §2.1).
 pub const RAY_EPS: f32 = 1500.0 / (1u32 << 24) as f32;
@@ -68,16 +66,18 @@ pub struct Baker<'a> {
 
 impl Baker<'_> {
     /// Shadings of one surface point seen from direction `wo` (unit, pointing away from the
-    /// surface), normal `n` facing `wo`; `out` receives `SHADING_DIM` values.
-    pub fn shade_point(&self, x: Vec3, n: Vec3, wo: Vec3, rng: &mut Rng, out: &mut [f32]) {
+    /// surface), normal `n` facing `wo`; `out` receives `ShadingLayout::DIM` values. Returns the
+    /// number of rays cast (GGX samples below the horizon cast none).
+    pub fn shade_point(&self, x: Vec3, n: Vec3, wo: Vec3, rng: &mut Rng, out: &mut [f32]) -> u64 {
         let frame = Frame::new(n);
+        let mut rays = self.samples.diffuse as u64;
         let mut ld = Vec3::ZERO;
         for _ in 0..self.samples.diffuse {
             let wi = frame.to_world(sample_cosine(rng.next_f32(), rng.next_f32()));
             ld += radiance_along(self.accel, self.lf, x, wi);
         }
         ld /= self.samples.diffuse.max(1) as f32;
-        out[..3].copy_from_slice(&ld.to_array());
+        out[ShadingLayout::LD].copy_from_slice(&ld.to_array());
         let wo_l = frame.to_local(wo);
         for (j, sigma) in roughness_levels().into_iter().enumerate() {
             let (mut s0, mut s1) = (Vec3::ZERO, Vec3::ZERO);
@@ -88,26 +88,30 @@ impl Baker<'_> {
                 else {
                     continue;
                 };
+                rays += 1;
                 let l = radiance_along(self.accel, self.lf, x, frame.to_world(wi).normalize());
                 s0 += l * g0;
                 s1 += l * g1;
             }
             let inv = 1.0 / spp.max(1) as f32;
-            out[3 + 3 * j..6 + 3 * j].copy_from_slice(&(s0 * inv).to_array());
-            out[21 + 3 * j..24 + 3 * j].copy_from_slice(&(s1 * inv).to_array());
+            out[ShadingLayout::ls0(j)].copy_from_slice(&(s0 * inv).to_array());
+            out[ShadingLayout::ls1(j)].copy_from_slice(&(s1 * inv).to_array());
         }
+        rays
     }
 
-    /// Bakes every pixel of one view (`SHADING_DIM` values per pixel, zeros where the
-    /// pixel-centre ray missed). `view_key` distinguishes views in the random streams.
-    pub fn bake_view(&self, hits: &ViewHits, seed: u64, view_key: u64) -> Vec<f32> {
-        let mut out = vec![0f32; hits.num_pixels() * SHADING_DIM];
-        out.par_chunks_mut(SHADING_DIM)
+    /// Bakes every pixel of one view (`ShadingLayout::DIM` values per pixel, zeros where the
+    /// pixel-centre ray missed) and the number of rays cast. `view_key` distinguishes views in
+    /// the random streams.
+    pub fn bake_view(&self, hits: &ViewHits, seed: u64, view_key: u64) -> (Vec<f32>, u64) {
+        let mut out = vec![0f32; hits.num_pixels() * ShadingLayout::DIM];
+        let rays = out
+            .par_chunks_mut(ShadingLayout::DIM)
             .enumerate()
             .with_min_len(16)
-            .for_each(|(p, o)| {
+            .map(|(p, o)| {
                 if hits.tri[p] < 0 {
-                    return;
+                    return 0;
                 }
                 let mut rng = Rng::new(seed, (view_key << 32) | p as u64);
                 self.shade_point(
@@ -116,9 +120,10 @@ impl Baker<'_> {
                     -hits.direction[p],
                     &mut rng,
                     o,
-                );
-            });
-        out
+                )
+            })
+            .sum();
+        (out, rays)
     }
 }
 
@@ -157,7 +162,7 @@ pub struct BakeView<'a> {
 
 /// Builds L′ from the training views' pixel-centre hits and HDR values.
 pub fn build_light_field(views: &[BakeView], res: usize) -> LightField {
-    let sb = crate::lightfield::SceneBox::from_points(views.iter().flat_map(|v| {
+    let sb = fipt_core::scene::SceneBox::from_points(views.iter().flat_map(|v| {
         v.hits
             .position
             .iter()
@@ -184,15 +189,19 @@ pub fn build_light_field(views: &[BakeView], res: usize) -> LightField {
 
 /// The channel groups the filter touches: L_d and, per filtered level, L_s0 and L_s1.
 pub fn filter_groups(cfg: &crate::filter::FilterConfig) -> Vec<Vec<usize>> {
-    let mut g = vec![vec![0, 1, 2]];
+    let mut g = vec![ShadingLayout::LD.collect()];
     for &j in &cfg.specular_levels {
-        g.push(
-            (3 + 3 * j..6 + 3 * j)
-                .chain(21 + 3 * j..24 + 3 * j)
-                .collect(),
-        );
+        g.push(ShadingLayout::ls0(j).chain(ShadingLayout::ls1(j)).collect());
     }
     g
+}
+
+/// The baked shadings of every view and the rays it took.
+pub struct BakeOutput {
+    /// `ShadingLayout::DIM` values per pixel, per view.
+    pub shadings: Vec<Vec<f32>>,
+    /// Secondary rays cast (samples below the horizon cast none).
+    pub rays: u64,
 }
 
 /// Bakes (and filters) every view; `progress(k)` is called after view k.
@@ -202,30 +211,40 @@ pub fn bake_views(
     views: &[BakeView],
     cfg: &BakeConfig,
     progress: &(dyn Fn(usize) + Sync),
-) -> Vec<Vec<f32>> {
+) -> BakeOutput {
     let baker = Baker {
         accel,
         lf,
         samples: cfg.samples.clone(),
     };
     let groups = filter_groups(&cfg.filter);
-    views
+    let mut rays = 0;
+    let shadings = views
         .iter()
         .enumerate()
         .map(|(k, v)| {
-            let mut s = baker.bake_view(v.hits, cfg.seed, k as u64);
-            crate::filter::filter_view(&cfg.filter, v.hits, v.focal, &mut s, SHADING_DIM, &groups);
+            let (mut s, r) = baker.bake_view(v.hits, cfg.seed, k as u64);
+            rays += r;
+            crate::filter::filter_view(
+                &cfg.filter,
+                v.hits,
+                v.focal,
+                &mut s,
+                ShadingLayout::DIM,
+                &groups,
+            );
             progress(k);
             s
         })
-        .collect()
+        .collect();
+    BakeOutput { shadings, rays }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lightfield::SceneBox;
     use fipt_core::brdf::{Brdf, Frame};
+    use fipt_core::scene::SceneBox;
     use fipt_core::scene::procedural::PartMesh;
 
     /// Directional albedo of the pure specular lobe (k_d = 0, k_s = 1) by quadrature over half
@@ -321,7 +340,7 @@ mod tests {
         let wo = Frame::new(n).to_world(wo_l);
         let runs = (0..12)
             .map(|k| {
-                let mut out = vec![0f32; SHADING_DIM];
+                let mut out = vec![0f32; ShadingLayout::DIM];
                 baker.shade_point(x, n, wo, &mut Rng::new(k, 0), &mut out);
                 out
             })
@@ -335,7 +354,7 @@ mod tests {
         for cos_o in [0.95f32, 0.25] {
             let (runs, _) = furnace_runs(cos_o, 256);
             for o in &runs {
-                for ld in &o[..3] {
+                for ld in &o[ShadingLayout::LD] {
                     assert!((ld - 1.0).abs() < 1e-6, "L_d = {ld} in a furnace");
                 }
             }
@@ -351,7 +370,9 @@ mod tests {
             for (j, sigma) in roughness_levels().into_iter().enumerate() {
                 let est: Vec<f64> = runs
                     .iter()
-                    .map(|o| (o[3 + 3 * j] + o[21 + 3 * j]) as f64)
+                    .map(|o| {
+                        (o[ShadingLayout::ls0(j).start] + o[ShadingLayout::ls1(j).start]) as f64
+                    })
                     .collect();
                 let mean = est.iter().sum::<f64>() / est.len() as f64;
                 let var =
@@ -381,7 +402,7 @@ mod tests {
             24,
             18,
         );
-        let hits = crate::raycast::cast_view(&accel, &room.mesh, &cam);
+        let hits = crate::accel::raycast::cast_view(&accel, &room.mesh, &cam);
         let image: Vec<f32> = (0..hits.num_pixels() * 3)
             .map(|i| (i % 7) as f32 * 0.1)
             .collect();
@@ -407,6 +428,8 @@ mod tests {
                 .install(|| bake_views(&accel, &lf, &views, &cfg, &|_| {}))
         };
         let (a, b) = (run(1), run(2));
+        assert_eq!(a.rays, b.rays);
+        let (a, b) = (a.shadings, b.shadings);
         assert!(a[0].iter().any(|v| *v > 0.0));
         assert_eq!(
             a[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),

@@ -1,20 +1,23 @@
-//! Stage 1 driver: ray cast the training views, build L′, bake and filter the shadings.
+//! The bake (paper §4.2, Eq. 9): ray cast the training views, build L′, bake and filter the
+//! shadings, through the on-disk shading cache.
 //!
-//! Owns: the glue between the dataset and fipt-bake, progress display. Must not touch: the
-//! estimators (fipt-bake) or file formats (`cache`).
+//! Owns: the glue between the dataset and fipt-bake. Must not touch: the estimators
+//! (fipt-bake) or the cache format (`cache`).
 
-use fipt_bake::bake::{BakeConfig, BakeView, bake_views, build_light_field};
+use crate::progress::progress_bar;
+use fipt_bake::integrators::bake::{BakeConfig, BakeView, bake_views, build_light_field};
 use fipt_bake::lightfield::LightField;
 use fipt_bake::{Accel, ViewHits, cast_view};
 use fipt_core::scene::Split;
-use indicatif::{ProgressBar, ProgressStyle};
 
-/// The products of stage 1 for one split.
+/// The products of the bake for one split.
 pub struct Baked {
     pub hits: Vec<ViewHits>,
     pub light_field: LightField,
-    /// `SHADING_DIM` values per pixel, per view.
+    /// `ShadingLayout::DIM` values per pixel, per view.
     pub shadings: Vec<Vec<f32>>,
+    /// Secondary rays the bake cast (0 when the shadings came from the cache).
+    pub rays: u64,
 }
 
 /// Casts every pixel-centre ray of a split.
@@ -26,24 +29,7 @@ pub fn cast_split(accel: &Accel, mesh: &fipt_core::scene::Mesh, split: &Split) -
         .collect()
 }
 
-/// A progress bar (hidden when `show` is false).
-pub fn progress_bar(len: u64, msg: &str, show: bool) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(len);
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_message(msg.to_string());
-    pb
-}
-
-/// Runs stage 1 on the training split.
+/// Bakes the training split.
 pub fn bake(
     accel: &Accel,
     mesh: &fipt_core::scene::Mesh,
@@ -55,17 +41,18 @@ pub fn bake(
     let views = train_views(train, &hits);
     let light_field = build_light_field(&views, cfg.voxel_res);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
-    let shadings = bake_views(accel, &light_field, &views, cfg, &|_| pb.inc(1));
+    let baked = bake_views(accel, &light_field, &views, cfg, &|_| pb.inc(1));
     pb.finish_and_clear();
     drop(views);
     Baked {
         hits,
         light_field,
-        shadings,
+        shadings: baked.shadings,
+        rays: baked.rays,
     }
 }
 
-/// Stage 1 with the on-disk cache: loads `out/cache/shadings.bin` when its key matches, else
+/// The bake with the on-disk cache: loads `out/cache/shadings.bin` when its key matches, else
 /// bakes and writes it. Returns the products and whether they came from the cache.
 pub fn bake_cached(
     out: &std::path::Path,
@@ -87,6 +74,7 @@ pub fn bake_cached(
                 hits,
                 light_field,
                 shadings,
+                rays: 0,
             },
             true,
         ));

@@ -8,12 +8,12 @@
 //!
 //! Owns: metrics and the per-part table. Must not touch: prediction.
 
-use crate::maps::ViewMaps;
+use super::predict::ViewMaps;
 use fipt_bake::ViewHits;
 use fipt_core::scene::{MapKind, View, meta::SceneMeta};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct ViewScore {
     pub view: usize,
     pub kd_psnr: Option<f64>,
@@ -23,7 +23,7 @@ pub struct ViewScore {
     pub emission_log_l2: Option<f64>,
 }
 
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Metrics {
     pub kd_psnr: Option<f64>,
     pub albedo_psnr: Option<f64>,
@@ -115,7 +115,7 @@ pub fn summarize(per_view: Vec<ViewScore>) -> Metrics {
 }
 
 /// Mean estimated vs true base colour, σ and m of one part over the train pixels that see it.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct PartRow {
     pub id: usize,
     pub name: String,

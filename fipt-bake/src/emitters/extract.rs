@@ -12,7 +12,7 @@
 //! Owns: per-triangle sampling, the decision and the radiance statistics. Must not touch: the
 //! mask itself (it is queried through a closure, a batch at a time).
 
-use crate::raycast::ViewHits;
+use crate::accel::raycast::ViewHits;
 use fipt_core::rng::Rng;
 use fipt_core::scene::Mesh;
 use glam::Vec3;

@@ -2,13 +2,12 @@
 //! emission at every pixel-centre hit, written in the ground truth's layout and naming so any
 //! FIPT-layout tool reads both; plus PNG previews.
 //!
-//! Owns: map prediction and map files. Must not touch: scoring (`eval`).
+//! Owns: map prediction and map files. Must not touch: scoring (`evaluate`).
 
 use anyhow::Result;
 use fipt_bake::ViewHits;
-use fipt_bake::lightfield::SceneBox;
 use fipt_core::brdf::{Frame, reflectances, sample_specular};
-use fipt_core::model::Trainer;
+use fipt_core::model::FiptModel;
 use fipt_core::rng::Rng;
 use fipt_core::scene::{Image, MapKind};
 use glam::Vec3;
@@ -54,8 +53,7 @@ pub fn albedo_mc(
 /// Predicts the maps of one view. Emitter pixels get the emitter's radiance and zero material
 /// (as the reference does); missed pixels are zero.
 pub fn predict_view(
-    tr: &Trainer,
-    sb: &SceneBox,
+    model: &FiptModel,
     hits: &ViewHits,
     emission: &[Vec3],
     albedo_samples: usize,
@@ -63,11 +61,8 @@ pub fn predict_view(
 ) -> ViewMaps {
     let n = hits.num_pixels();
     let idx: Vec<usize> = (0..n).filter(|&p| hits.tri[p] >= 0).collect();
-    let xs: Vec<[f32; 3]> = idx
-        .iter()
-        .map(|&p| sb.to_unit(hits.position[p]).to_array())
-        .collect();
-    let mat = tr.material(&xs);
+    let xs: Vec<Vec3> = idx.iter().map(|&p| hits.position[p]).collect();
+    let mat = model.material_world(&xs);
     let mut m = ViewMaps {
         width: hits.width,
         height: hits.height,
@@ -134,7 +129,7 @@ impl ViewMaps {
             let img = Image::from_data(w, h, 3, data);
             img.write_exr(&dir.join(kind.folder()).join(kind.file_name(k)))?;
             let scale = if kind == MapKind::Emit { 0.1 } else { 1.0 };
-            crate::cache::write_png(
+            crate::output::write_png(
                 &dir.join("preview")
                     .join(format!("{k:03}_{}.png", kind.folder())),
                 w,

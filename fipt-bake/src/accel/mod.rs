@@ -1,7 +1,11 @@
 //! The ray-casting acceleration structure: an obvhs compressed wide BVH (CWBVH) over the mesh,
 //! with the triangles copied into BVH leaf order so a leaf reads contiguous memory.
 //!
-//! Owns: BVH build, closest-hit and occlusion queries. Must not touch: cameras, shading.
+//! Owns: BVH build (`sah`), closest-hit and occlusion queries, pixel-centre ray casting
+//! (`raycast`). Must not touch: shading.
+
+pub mod raycast;
+mod sah;
 
 use fipt_core::scene::Mesh;
 use glam::{Vec3, Vec3A};
@@ -79,7 +83,7 @@ impl Accel {
             })
             .collect();
         let boxes: Vec<_> = tris.iter().map(|t| t.aabb()).collect();
-        let bvh = bvh2_to_cwbvh(&crate::sah::build_bvh2(&boxes), 3, true, false);
+        let bvh = bvh2_to_cwbvh(&sah::build_bvh2(&boxes), 3, true, false);
         let leaf_prim: Vec<u32> = bvh.primitive_indices.clone();
         let leaf_tris = leaf_prim
             .iter()

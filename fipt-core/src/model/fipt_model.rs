@@ -1,0 +1,184 @@
+//! The recovered scene model: the material field (hash grid + MLP) and the emission mask of
+//! Eq. 14, with the scene box that maps world positions into the grid's unit cube.
+//!
+//! Owns: inference (batched queries of a, σ, m and α), save and load. Must not touch:
+//! optimisation (`step::Trainer` holds a `FiptModel` and its optimisers).
+
+use super::fields::{
+    EmissionMask, EmissionMaskConfig, MaterialFieldConfig, Mlp, alpha_from_raw, decode_material,
+};
+use super::hashgrid::HashGrid;
+use crate::scene::SceneBox;
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use std::path::Path;
+
+/// The optimised networks (everything but the host hash table).
+#[derive(Module, Debug)]
+pub struct Nets {
+    pub material: Mlp,
+    pub emission: EmissionMask,
+}
+
+/// What a saved model needs to be rebuilt before its parameters are read: the field configs
+/// and the scene box (`model.json`).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ModelSpec {
+    pub material: MaterialFieldConfig,
+    pub emission: EmissionMaskConfig,
+    pub scene_box: SceneBox,
+}
+
+/// The two fields of Eq. 14 and the scene box.
+pub struct FiptModel {
+    pub spec: ModelSpec,
+    pub grid: HashGrid,
+    pub nets: Nets,
+    /// The device the networks live on (an autodiff device while training).
+    pub device: Device,
+}
+
+/// Host-side material values: base colour (3 per point), roughness and metallic (1 per point).
+#[derive(Clone, Debug, Default)]
+pub struct MaterialValues {
+    pub a: Vec<f32>,
+    pub sigma: Vec<f32>,
+    pub metallic: Vec<f32>,
+}
+
+/// Points per inference batch.
+const INFER_CHUNK: usize = 1 << 16;
+
+fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
+    Tensor::from_data(TensorData::new(v, shape), dev)
+}
+
+/// Model files inside a model folder.
+const NETS_FILE: &str = "fields.bpk";
+const GRID_FILE: &str = "hashgrid.bin";
+const SPEC_FILE: &str = "model.json";
+
+impl FiptModel {
+    /// A fresh model on `device`, every parameter initialised on the host from `seed` (so a
+    /// seed gives the same model on every backend).
+    pub fn init(spec: ModelSpec, device: &Device, seed: u64) -> Self {
+        let field = spec.material.init(device, seed);
+        let emission = spec.emission.init(device, seed);
+        Self {
+            spec,
+            grid: field.grid,
+            nets: Nets {
+                material: field.mlp,
+                emission,
+            },
+            device: device.clone(),
+        }
+    }
+
+    /// The material field at unit-cube points (inference, batched, no autodiff).
+    pub fn material(&self, x_unit: &[[f32; 3]]) -> MaterialValues {
+        let mlp = self.nets.material.valid();
+        let dev = self.inference_device();
+        let mut out = MaterialValues::default();
+        for chunk in x_unit.chunks(INFER_CHUNK) {
+            let n = chunk.len();
+            let enc = tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev);
+            let m = decode_material(mlp.forward(enc));
+            out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));
+            out.sigma
+                .extend(m.sigma.try_into_vec_as::<f32>().expect("f32"));
+            out.metallic
+                .extend(m.metallic.try_into_vec_as::<f32>().expect("f32"));
+        }
+        out
+    }
+
+    /// The material field at world points.
+    pub fn material_world(&self, x_world: &[glam::Vec3]) -> MaterialValues {
+        let sb = self.spec.scene_box;
+        let xs: Vec<[f32; 3]> = x_world.iter().map(|&p| sb.to_unit(p).to_array()).collect();
+        self.material(&xs)
+    }
+
+    /// The emission mask α at world points (inference, batched).
+    pub fn alpha(&self, x_world: &[[f32; 3]]) -> Vec<f32> {
+        let mask = self.nets.emission.valid();
+        let dev = self.inference_device();
+        let mut out = Vec::with_capacity(x_world.len());
+        for chunk in x_world.chunks(INFER_CHUNK) {
+            let x = tensor2(
+                chunk.iter().flatten().copied().collect(),
+                [chunk.len(), 3],
+                &dev,
+            );
+            out.extend(
+                alpha_from_raw(mask.raw(x))
+                    .try_into_vec_as::<f32>()
+                    .expect("f32"),
+            );
+        }
+        out
+    }
+
+    /// The plain (non-autodiff) device of the networks.
+    fn inference_device(&self) -> Device {
+        self.device.clone().without_autodiff()
+    }
+
+    /// Saves the model into `dir`: `model.json` (configs and scene box), the networks as a burn
+    /// record (`fields.bpk`) and the hash table as raw little-endian f32 (`hashgrid.bin`), each
+    /// written to a temporary name first.
+    pub fn save(&self, dir: &Path) -> Result<(), String> {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let spec = serde_json::to_string_pretty(&self.spec).map_err(|e| e.to_string())?;
+        crate::io::write_bytes_atomic(&dir.join(SPEC_FILE), spec.as_bytes())
+            .map_err(|e| e.to_string())?;
+        let tmp = dir.join("fields.tmp.bpk");
+        self.nets
+            .clone()
+            .save_file(&tmp)
+            .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
+        std::fs::rename(&tmp, dir.join(NETS_FILE)).map_err(|e| e.to_string())?;
+        let bytes: Vec<u8> = self
+            .grid
+            .table
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        crate::io::write_bytes_atomic(&dir.join(GRID_FILE), &bytes).map_err(|e| e.to_string())
+    }
+
+    /// Loads a model saved by `save` onto `device`. Errors name the file and the problem
+    /// (missing, malformed, or sizes that do not match `model.json`).
+    pub fn load(dir: &Path, device: &Device) -> Result<Self, String> {
+        let spec_path = dir.join(SPEC_FILE);
+        let text = std::fs::read_to_string(&spec_path)
+            .map_err(|e| format!("{}: cannot read: {e}", spec_path.display()))?;
+        let spec: ModelSpec = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: malformed: {e}", spec_path.display()))?;
+        let mut model = Self::init(spec, device, 0);
+        let nets_path = dir.join(NETS_FILE);
+        if !nets_path.is_file() {
+            return Err(format!("{}: missing", nets_path.display()));
+        }
+        model.nets = model
+            .nets
+            .try_load_file(&nets_path)
+            .map_err(|e| format!("{}: cannot load the networks: {e:?}", nets_path.display()))?;
+        let grid_path = dir.join(GRID_FILE);
+        let bytes = std::fs::read(&grid_path)
+            .map_err(|e| format!("{}: cannot read: {e}", grid_path.display()))?;
+        let want = model.grid.table.len() * 4;
+        if bytes.len() != want {
+            return Err(format!(
+                "{}: {} bytes, but the grid of model.json needs {want}",
+                grid_path.display(),
+                bytes.len()
+            ));
+        }
+        for (v, b) in model.grid.table.iter_mut().zip(bytes.chunks_exact(4)) {
+            *v = f32::from_le_bytes(b.try_into().expect("4 bytes"));
+        }
+        Ok(model)
+    }
+}
