@@ -1,8 +1,12 @@
 //! End to end on the Mitsuba reference scene with `configs/fast.json`: `fipt-train run` (bake →
-//! stage 2 → emitters → maps → metrics) reaches loose bounds on every metric, extracts all three
+//! fit → emitters → maps → metrics) beats the best constant predictor of k_d, a′ and σ (computed
+//! here from the ground-truth maps and scored by the same scorer) by a margin, extracts all three
 //! emitters with no false emitter area above 1 % of the true area, and a rerun with the same
 //! seed gives the same metrics to 1e-4.
 
+use fipt_core::scene::{Dataset, LoadOptions, MapKind};
+use fipt_train::pipeline::evaluate::{score_view, summarize};
+use fipt_train::pipeline::predict::ViewMaps;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -55,11 +59,30 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         "fast run: {}",
         METRICS.map(|k| format!("{k} {:.4}", get(&m, k))).join(", ")
     );
-    // Loose bounds for the small config (the note gives the default config's figures). For
-    // scale: σ = 1 everywhere scores 12.8 dB roughness, a grey k_d = 0.5 13.8 dB k_d.
-    assert!(get(&m, "kd_psnr") >= 21.0);
-    assert!(get(&m, "albedo_psnr") >= 21.0);
-    assert!(get(&m, "roughness_psnr") >= 13.5);
+    // The scale: the best constant predictor of each map, scored by the same scorer.
+    let c = constant_predictor_scores();
+    eprintln!(
+        "best constants: kd_psnr {:.4}, albedo_psnr {:.4}, roughness_psnr {:.4}",
+        c[0], c[1], c[2]
+    );
+    // Measured: k_d 24.59 vs 13.99, a′ 25.12 vs 13.57, σ 16.02 vs 15.78 dB. σ is barely above
+    // the constant (the open "Refinement and glossy materials" issue); its margin is the one
+    // thing this test can hold it to until then, and that issue must raise it.
+    for (k, (key, margin)) in [
+        ("kd_psnr", 6.0),
+        ("albedo_psnr", 6.0),
+        ("roughness_psnr", 0.2),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let est = get(&m, key);
+        assert!(
+            est >= c[k] + margin,
+            "{key} {est:.2} dB does not beat the best constant ({:.2} dB) by {margin} dB",
+            c[k]
+        );
+    }
     assert!(get(&m, "emission_iou") >= 0.85);
     assert!(get(&m, "emission_log_l2") <= 5e-3);
 
@@ -114,4 +137,77 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         assert!((a - b).abs() <= 1e-4 * a.abs().max(1.0), "{k}: {a} vs {b}");
     }
     let _ = std::fs::remove_dir_all(&base);
+}
+
+/// The metrics of the best constant predictors: k_d, a′ and σ each set to the mean of the
+/// (clamped) ground truth over the pixels its metric scores, on every train view; no emission.
+/// Returns [kd_psnr, albedo_psnr, roughness_psnr].
+fn constant_predictor_scores() -> [f64; 3] {
+    let opts = LoadOptions {
+        maps: vec![
+            MapKind::DiffCol,
+            MapKind::Albedo,
+            MapKind::Roughness,
+            MapKind::Emit,
+        ],
+        val: false,
+    };
+    let ds = Dataset::load(&scene_dir(), &opts).unwrap();
+    // Sums over the masked pixels of every view: k_d (3), a′ (3), σ (1) and their counts.
+    let (mut kd, mut al, mut sg) = ([0f64; 3], [0f64; 3], 0f64);
+    let (mut n_kd, mut n_rest) = (0usize, 0usize);
+    for v in &ds.train.views {
+        let (e, r) = (
+            v.map(MapKind::Emit).unwrap(),
+            v.map(MapKind::Roughness).unwrap(),
+        );
+        let (d, a) = (
+            v.map(MapKind::DiffCol).unwrap(),
+            v.map(MapKind::Albedo).unwrap(),
+        );
+        for p in 0..v.image.num_pixels() {
+            if e.rgb(p).iter().sum::<f32>() > 0.0 {
+                continue;
+            }
+            n_rest += 1;
+            sg += r.scalar(p).clamp(0.2, 1.0) as f64;
+            for (sum, v) in al.iter_mut().zip(a.rgb(p)) {
+                *sum += v.clamp(0.0, 1.0) as f64;
+            }
+            if r.scalar(p) >= 0.6 {
+                n_kd += 1;
+                for (sum, v) in kd.iter_mut().zip(d.rgb(p)) {
+                    *sum += v.clamp(0.0, 1.0) as f64;
+                }
+            }
+        }
+    }
+    let kd = kd.map(|x| (x / n_kd as f64) as f32);
+    let al = al.map(|x| (x / n_rest as f64) as f32);
+    let sg = (sg / n_rest as f64) as f32;
+    let scores = ds
+        .train
+        .views
+        .iter()
+        .map(|v| {
+            let n = v.image.num_pixels();
+            let maps = ViewMaps {
+                width: v.image.width,
+                height: v.image.height,
+                kd: kd.repeat(n),
+                sigma: vec![sg; n],
+                metallic: vec![0.0; n],
+                base: kd.repeat(n),
+                albedo: al.repeat(n),
+                emit: vec![0.0; 3 * n],
+            };
+            score_view(v, &maps)
+        })
+        .collect();
+    let m = summarize(scores);
+    [
+        m.kd_psnr.unwrap(),
+        m.albedo_psnr.unwrap(),
+        m.roughness_psnr.unwrap(),
+    ]
 }

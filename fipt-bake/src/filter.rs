@@ -114,3 +114,187 @@ pub fn filter_view(
         }
     });
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fipt_core::rng::Rng;
+
+    const W: usize = 24;
+    const H: usize = 16;
+    /// Focal length in pixels: pixel footprints are ~t/16, a few cm at t ≈ 1.
+    const F: f32 = 16.0;
+
+    /// Pixel-centre hits of a camera at the origin looking down +z (OpenCV axes) on the plane
+    /// n·x = c chosen per pixel (n facing the camera); None is a miss.
+    fn hits(plane: impl Fn(usize, usize, Vec3) -> Option<(Vec3, f32)>) -> ViewHits {
+        let mut v = ViewHits {
+            width: W,
+            height: H,
+            origin: Vec3::ZERO,
+            direction: vec![],
+            t: vec![],
+            tri: vec![],
+            position: vec![],
+            normal: vec![],
+        };
+        for p in 0..W * H {
+            let (row, col) = (p / W, p % W);
+            let d = Vec3::new(
+                (col as f32 + 0.5 - 0.5 * W as f32) / F,
+                (row as f32 + 0.5 - 0.5 * H as f32) / F,
+                1.0,
+            )
+            .normalize();
+            v.direction.push(d);
+            match plane(row, col, d) {
+                Some((n, c)) => {
+                    let t = c / n.dot(d);
+                    assert!(t > 0.0 && n.dot(d) < 0.0);
+                    v.t.push(t);
+                    v.tri.push(p as i32);
+                    v.position.push(d * t);
+                    v.normal.push(n);
+                }
+                None => {
+                    v.t.push(f32::INFINITY);
+                    v.tri.push(-1);
+                    v.position.push(Vec3::ZERO);
+                    v.normal.push(Vec3::ZERO);
+                }
+            }
+        }
+        v
+    }
+
+    /// Left half: the wall z = 1; right half: the wall z = 1.5 (same normal, a depth step).
+    fn depth_step() -> ViewHits {
+        hits(|_, col, _| {
+            let c = if col < W / 2 { -1.0 } else { -1.5 };
+            Some((Vec3::NEG_Z, c))
+        })
+    }
+
+    /// Left half: z = 1; right half: the plane z = 1 + x through the same line x = 0, z = 1 —
+    /// a 45° crease, continuous in position, only the normal changes.
+    fn crease() -> ViewHits {
+        let nb = Vec3::new(1.0, 0.0, -1.0).normalize();
+        hits(move |_, _, d| {
+            if d.x < 0.0 {
+                Some((Vec3::NEG_Z, -1.0))
+            } else {
+                Some((nb, -std::f32::consts::FRAC_1_SQRT_2))
+            }
+        })
+    }
+
+    fn left(p: usize) -> bool {
+        p % W < W / 2
+    }
+
+    #[test]
+    fn constants_are_preserved() {
+        let cfg = FilterConfig::default();
+        for h in [depth_step(), crease()] {
+            let mut data: Vec<f32> = (0..W * H).flat_map(|_| [0.37, -2.5, 11.0]).collect();
+            let orig = data.clone();
+            filter_view(&cfg, &h, F, &mut data, 3, &[vec![0, 1, 2]]);
+            for (a, b) in data.iter().zip(&orig) {
+                assert!((a - b).abs() <= 1e-5 * b.abs(), "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn step_edges_are_not_blurred_and_noise_drops() {
+        let cfg = FilterConfig::default();
+        for (name, h) in [("depth step", depth_step()), ("crease", crease())] {
+            // Noise-free: 1 on the left surface, 5 on the right. A filter that mixes across the
+            // edge gives in-between values next to it; this one must give exactly 1 and 5.
+            let truth: Vec<f32> = (0..W * H)
+                .map(|p| if left(p) { 1.0 } else { 5.0 })
+                .collect();
+            let mut data = truth.clone();
+            filter_view(&cfg, &h, F, &mut data, 1, &[vec![0]]);
+            for (p, (a, b)) in data.iter().zip(&truth).enumerate() {
+                assert!((a - b).abs() < 1e-5, "{name}: pixel {p}: {a} vs {b}");
+            }
+            // Uniform noise ±0.5 (variance 1/12) on each side: the error variance must drop at
+            // least 8× (a 9×9 window with σ = 2.5 px averages tens of pixels), and every output
+            // stays a convex combination of its own side's inputs, within ±0.5 of its truth.
+            let mut rng = Rng::new(5, 0);
+            let mut data: Vec<f32> = truth.iter().map(|t| t + rng.next_f32() - 0.5).collect();
+            let var = |d: &[f32], side: bool| {
+                let e: Vec<f64> = (0..W * H)
+                    .filter(|&p| left(p) == side)
+                    .map(|p| (d[p] - truth[p]) as f64)
+                    .collect();
+                e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64
+            };
+            let before = [var(&data, true), var(&data, false)];
+            filter_view(&cfg, &h, F, &mut data, 1, &[vec![0]]);
+            for (side, b) in [true, false].into_iter().zip(before) {
+                let a = var(&data, side);
+                assert!(a < b / 8.0, "{name}, left={side}: variance {b} -> {a}");
+            }
+            for (p, (a, b)) in data.iter().zip(&truth).enumerate() {
+                assert!((a - b).abs() <= 0.5, "{name}: pixel {p}: {a} vs truth {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn channels_outside_groups_are_untouched() {
+        let cfg = FilterConfig::default();
+        let h = depth_step();
+        let dim = 5;
+        let mut rng = Rng::new(9, 1);
+        let mut data: Vec<f32> = (0..W * H * dim).map(|_| rng.next_f32()).collect();
+        let orig = data.clone();
+        filter_view(&cfg, &h, F, &mut data, dim, &[vec![0, 1], vec![3]]);
+        let changed = |c: usize| (0..W * H).any(|p| data[p * dim + c] != orig[p * dim + c]);
+        for c in [2, 4] {
+            assert!(!changed(c), "channel {c} is outside the groups");
+        }
+        for c in [0, 1, 3] {
+            assert!(changed(c), "channel {c} was not filtered");
+        }
+        // A zero radius or no groups disables the filter.
+        for (r, groups) in [(0, vec![vec![0]]), (4, vec![])] {
+            let mut d = orig.clone();
+            let cfg = FilterConfig {
+                radius: r,
+                ..FilterConfig::default()
+            };
+            filter_view(&cfg, &h, F, &mut d, dim, &groups);
+            assert_eq!(d, orig);
+        }
+    }
+
+    #[test]
+    fn misses_stay_zero_and_do_not_leak() {
+        let cfg = FilterConfig::default();
+        // The wall z = 1 with a block of misses in the middle; the missed pixels still carry a
+        // plausible position and normal, so only `tri < 0` can keep them out.
+        let mut h = hits(|_, _, _| Some((Vec3::NEG_Z, -1.0)));
+        let miss = |p: usize| (5..11).contains(&(p / W)) && (8..14).contains(&(p % W));
+        for p in (0..W * H).filter(|&p| miss(p)) {
+            h.tri[p] = -1;
+        }
+        let mut data: Vec<f32> = (0..W * H)
+            .flat_map(|p| if miss(p) { [0.0; 2] } else { [3.0, 7.0] })
+            .collect();
+        filter_view(&cfg, &h, F, &mut data, 2, &[vec![0, 1]]);
+        for p in 0..W * H {
+            let want = if miss(p) { [0.0, 0.0] } else { [3.0, 7.0] };
+            for c in 0..2 {
+                assert!(
+                    (data[2 * p + c] - want[c]).abs() < 1e-5,
+                    "pixel {p} channel {c}: {} vs {}",
+                    data[2 * p + c],
+                    want[c]
+                );
+            }
+        }
+    }
+}

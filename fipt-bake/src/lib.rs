@@ -2,7 +2,7 @@
 //! Folders by role, as Mitsuba's:
 //!
 //! - `accel/`: the SAH BVH (obvhs CWBVH), closest-hit queries and pixel-centre ray casting;
-//! - `integrators/`: estimators of light-transport integrals (the stage-1 shading bake, Eq. 9);
+//! - `integrators/`: estimators of light-transport integrals (the shading bake, Eq. 9);
 //! - `emitters/`: emitter extraction from the emission mask (§4.4);
 //! - `lightfield`: the voxel surface light field L′; `filter`: the shading filter;
 //!   `segfuse`: segmentation fusion onto triangles.

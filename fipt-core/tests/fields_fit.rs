@@ -34,7 +34,8 @@ fn hash_grid_field_fits_smooth_rgb_function() {
         .with_base_resolution(4.0)
         .with_per_level_scale(1.45)
         .init(1);
-    let mut mlp = Mlp::new(&[grid.output_dim(), 64, 64, 3], 1, &dev);
+    // The production MLP: bias-free, tiny-cuda-nn init (as `MaterialFieldConfig::init`).
+    let mut mlp = Mlp::tcnn(&[grid.output_dim(), 64, 64, 3], 1, &dev);
     let mut optim = AdamConfig::new().with_epsilon(1e-15).init();
     let mut tadam = TableAdam::new(&grid, 0.9, 0.999, 1e-15);
     let mut tgrad = TableGrad::new(&grid);

@@ -2,7 +2,7 @@
 //! config and the code version are unchanged), plus EXR images in the reference's naming so
 //! people can look at them, and PNG previews.
 //!
-//! Owns: cache keys and file formats of stage-1 outputs. Must not touch: how shadings are made.
+//! Owns: cache keys and file formats of the bake's outputs. Must not touch: how shadings are made.
 
 use anyhow::{Context, Result, bail};
 use fipt_bake::integrators::bake::BakeConfig;

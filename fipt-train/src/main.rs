@@ -59,7 +59,7 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Stage 1 alone: L′, the baked and filtered shadings (cached), EXR and PNG outputs.
+    /// The bake alone: L′, the baked and filtered shadings (cached), EXR and PNG outputs.
     Bake {
         #[command(flatten)]
         job: JobArgs,
@@ -67,7 +67,7 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// The pipeline: bake (cached) → stage 2 → emitters → maps → metrics.
+    /// The pipeline: bake (cached) → fit → emitters → maps → metrics.
     Run {
         #[command(flatten)]
         job: JobArgs,
@@ -113,14 +113,15 @@ enum BenchCmd {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
-    /// Secondary rays per second of the stage-1 bake on a built-in scene.
+    /// Secondary rays per second of the bake on a built-in scene.
     Bake {
         #[arg(long)]
         json: bool,
         #[arg(long, default_value_t = 3)]
         reps: usize,
     },
-    /// Median time of one stage-2 training step (reference and CPU-sized models).
+    /// Median time of one training step of the fit (reference and CPU-sized models, part and
+    /// semantic losses, shuffled batches of a realistic pixel store).
     Step {
         /// Backend(s) to time: flex, ndarray, wgpu (default: flex and ndarray).
         #[arg(long)]

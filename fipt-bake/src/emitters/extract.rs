@@ -1,4 +1,4 @@
-//! Emitter extraction (paper §4.5, reference §2.4): a triangle is an emitter when the mean of
+//! Emitter extraction (paper §4.4, Eq. 13; reference §2.4): a triangle is an emitter when the mean of
 //! the emission mask α over uniform samples on it exceeds a threshold; its radiance is the
 //! per-channel (lower) median of the photo pixels whose pixel-centre ray first hit it; emitters
 //! never seen with positive radiance are dropped.

@@ -1,6 +1,7 @@
-//! Stage 1 of FIPT (paper §4.1–4.2, reference §2.2): per training pixel, the diffuse shading
-//! L_d and the specular shadings L_s0, L_s1 at the roughness levels linspace(0.02, 1, 6), each a
-//! Monte Carlo mean of L′ at the first hit of secondary rays from x + ε·ω.
+//! The shading bake (paper §4.2, Eq. 9 for the integrals of Eq. 6; reference §2.2): per
+//! training pixel, the diffuse shading L_d and the specular shadings L_s0, L_s1 at the roughness
+//! levels linspace(0.02, 1, 6), each a Monte Carlo mean of L′ at the first hit of secondary rays
+//! from x + ε·ω.
 //!
 //! Random numbers come from (seed, view, pixel), so results are bit-identical for any thread
 //! count.
@@ -127,7 +128,7 @@ impl Baker<'_> {
     }
 }
 
-/// Everything stage 1 needs to know.
+/// Everything the bake needs to know.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BakeConfig {
@@ -286,6 +287,11 @@ mod tests {
 
     /// A closed unit box whose light field is 1 on every surface voxel.
     fn furnace() -> (Accel, LightField) {
+        lit_box(&|_| 1.0)
+    }
+
+    /// A closed unit box whose light field at surface point x is `radiance(x)`.
+    fn lit_box(radiance: &dyn Fn(Vec3) -> f32) -> (Accel, LightField) {
         let mut pm = PartMesh::default();
         pm.cuboid("box", Vec3::ZERO, Vec3::ONE, 4);
         let mesh = pm.mesh;
@@ -308,7 +314,7 @@ mod tests {
                 } else {
                     n
                 };
-                samples.push((x, n, [1.0; 3]));
+                samples.push((x, n, [radiance(x); 3]));
             }
         }
         let lf = LightField::build(
@@ -325,7 +331,13 @@ mod tests {
     /// Runs `shade_point` 12 times (independent seeds) on the furnace floor for view angle
     /// cos θ_o; returns the runs and ω_o in the local frame.
     fn furnace_runs(cos_o: f32, spp: usize) -> (Vec<Vec<f32>>, Vec3) {
-        let (accel, lf) = furnace();
+        box_runs(furnace(), cos_o, spp)
+    }
+
+    /// The point on the floor where `box_runs` shades.
+    const FLOOR_X: Vec3 = Vec3::new(0.43, 0.0, 0.57);
+
+    fn box_runs((accel, lf): (Accel, LightField), cos_o: f32, spp: usize) -> (Vec<Vec<f32>>, Vec3) {
         let baker = Baker {
             accel: &accel,
             lf: &lf,
@@ -334,7 +346,7 @@ mod tests {
                 specular: [spp; 6],
             },
         };
-        let x = Vec3::new(0.43, 0.0, 0.57); // on the floor, normal +y
+        let x = FLOOR_X; // on the floor, normal +y
         let n = Vec3::Y;
         let wo_l = Vec3::new((1.0 - cos_o * cos_o).sqrt(), 0.0, cos_o);
         let wo = Frame::new(n).to_world(wo_l);
@@ -358,6 +370,48 @@ mod tests {
                     assert!((ld - 1.0).abs() < 1e-6, "L_d = {ld} in a furnace");
                 }
             }
+        }
+    }
+
+    /// Form factor from a differential area facing a parallel rectangle at height 1 to that
+    /// rectangle, the area's foot at one corner and sides a, b (Howell's catalogue, C-11 case).
+    fn corner_form_factor(a: f64, b: f64) -> f64 {
+        let (ra, rb) = ((1.0 + a * a).sqrt(), (1.0 + b * b).sqrt());
+        (a / ra * (b / ra).atan() + b / rb * (a / rb).atan()) / std::f64::consts::TAU
+    }
+
+    /// Only the ceiling of the box (y = 1) is lit, with L′ = 1: then L_d at a floor point is the
+    /// form factor to the unit ceiling square, the sum of four corner form factors (0.2368 at
+    /// (0.43, 0.57)). A sampler that drops the cosine, or a wrong pdf, misses it by far: uniform
+    /// hemisphere sampling weighted as cosine sampling gives the ceiling's solid angle / 2π.
+    #[test]
+    fn lit_ceiling_gives_the_analytic_form_factor() {
+        let lit = lit_box(&|x| if x.y > 0.999 { 1.0 } else { 0.0 });
+        let (runs, _) = box_runs(lit, 0.7, 4096);
+        let est: Vec<f64> = runs.iter().map(|o| o[0] as f64).collect();
+        let mean = est.iter().sum::<f64>() / est.len() as f64;
+        let var = est.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (est.len() - 1) as f64;
+        let stderr = (var / est.len() as f64).sqrt();
+        let (px, pz) = (FLOOR_X.x as f64, FLOOR_X.z as f64);
+        let exact: f64 = [
+            (px, pz),
+            (1.0 - px, pz),
+            (px, 1.0 - pz),
+            (1.0 - px, 1.0 - pz),
+        ]
+        .into_iter()
+        .map(|(a, b)| corner_form_factor(a, b))
+        .sum();
+        assert!(
+            (mean - exact).abs() <= 4.0 * stderr + 2e-3,
+            "L_d = {mean:.5} ± {stderr:.5}, form factor {exact:.5}"
+        );
+        // The wrong answers are far outside the tolerance (the test can fail).
+        assert!(4.0 * stderr + 2e-3 < 0.02, "stderr {stderr}");
+        // Every channel agrees (L′ is grey).
+        for o in &runs {
+            assert_eq!(o[0], o[1]);
+            assert_eq!(o[1], o[2]);
         }
     }
 

@@ -2,14 +2,14 @@
 
 use glam::Vec3;
 
-/// Eq. 5: diffuse and specular reflectances from base colour a and metallic m:
+/// Eq. 1's diffuse and specular reflectances from base colour a and metallic m:
 /// k_d = a(1 − m), k_s = 0.04(1 − m) + a·m.
 #[inline]
 pub fn reflectances(a: Vec3, m: f32) -> (Vec3, Vec3) {
     (a * (1.0 - m), Vec3::splat(0.04 * (1.0 - m)) + a * m)
 }
 
-/// Eq. 6: GGX normal distribution D(h) = α² / (π ((n·h)²(α² − 1) + 1)²), α = σ².
+/// Eq. 1's D: GGX normal distribution D(h) = α² / (π ((n·h)²(α² − 1) + 1)²), α = σ².
 #[inline]
 pub fn ggx_d(n_dot_h: f32, sigma: f32) -> f32 {
     let a2 = (sigma * sigma) * (sigma * sigma);
@@ -19,7 +19,7 @@ pub fn ggx_d(n_dot_h: f32, sigma: f32) -> f32 {
     a2 / (std::f32::consts::PI * d * d)
 }
 
-/// Eq. 7 divided by (n·l)(n·v): G_s = 1 / ((n·v(1−k) + k)(n·l(1−k) + k)), k = (σ+1)²/8
+/// Eq. 1's G (Schlick-GGX) divided by (n·l)(n·v): G_s = 1 / ((n·v(1−k) + k)(n·l(1−k) + k)), k = (σ+1)²/8
 /// (Schlick-GGX with the UE4 remap), so f_s = D·F·G_s / 4.
 #[inline]
 pub fn g_schlick_over(n_dot_v: f32, n_dot_l: f32, sigma: f32) -> f32 {
@@ -28,7 +28,7 @@ pub fn g_schlick_over(n_dot_v: f32, n_dot_l: f32, sigma: f32) -> f32 {
     1.0 / ((nv * (1.0 - k) + k) * (nl * (1.0 - k) + k))
 }
 
-/// The Schlick Fresnel split F = k_s·F0 + F1 with F0 = 1 − (1 − v·h)⁵, F1 = (1 − v·h)⁵.
+/// Eq. 7: the Schlick Fresnel split F = k_s·F0 + F1 with F0 = 1 − (1 − v·h)⁵, F1 = (1 − v·h)⁵.
 #[inline]
 pub fn fresnel_split(v_dot_h: f32) -> (f32, f32) {
     let x = (1.0 - v_dot_h.max(0.0)).powi(5);

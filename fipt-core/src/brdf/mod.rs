@@ -1,4 +1,4 @@
-//! The FIPT BRDF (paper Eq. 1, 5–7; reference §2.1) as scalar code on glam types, for the CPU
+//! The FIPT BRDF (paper Eq. 1, its Fresnel split Eq. 7; reference §2.1) as scalar code on glam types, for the CPU
 //! tracer, sampling and pdfs. The tensor version lives in `model::brdf`; a test holds them equal.
 //!
 //! Owns: k_d/k_s from (a, m), GGX D, Schlick-GGX G, the split Schlick Fresnel, the local frame,
@@ -40,7 +40,7 @@ pub fn level_weights(sigma: f32) -> [f32; ROUGHNESS_LEVELS] {
     w
 }
 
-/// Eq. 9–11 on one pixel's packed shadings (L_d, L_s0[6], L_s1[6]):
+/// Eq. 5 with Eq. 8's roughness lerp on one pixel's packed shadings (`ShadingLayout`):
 /// k_d·L_d + k_s·L_s0(σ) + L_s1(σ).
 pub fn factorised_render(kd: [f32; 3], ks: [f32; 3], sigma: f32, shading: &[f32]) -> [f32; 3] {
     let w = level_weights(sigma);

@@ -1,11 +1,11 @@
 //! The FIPT BRDF as tensor ops (the scalar twin is `crate::brdf`; a test holds them equal).
 //!
-//! Owns: Eq. 1, 5–7 on tensors. Must not touch: sampling (scalar side only).
+//! Owns: the BRDF of Eq. 1 (k_d, k_s, GGX D, Schlick-GGX G, Schlick F) on tensors. Must not touch: sampling (scalar side only).
 
 use burn::tensor::Tensor;
 use std::f32::consts::PI;
 
-/// Eq. 5: k_d = a(1 − m), k_s = 0.04(1 − m) + a·m; a [N,3], m [N,1].
+/// Eq. 1's reflectances: k_d = a(1 − m), k_s = 0.04(1 − m) + a·m; a [N,3], m [N,1].
 pub fn reflectances(a: Tensor<2>, m: Tensor<2>) -> (Tensor<2>, Tensor<2>) {
     let one_m = m.clone().neg().add_scalar(1.0);
     let kd = a.clone() * one_m.clone();
@@ -13,7 +13,7 @@ pub fn reflectances(a: Tensor<2>, m: Tensor<2>) -> (Tensor<2>, Tensor<2>) {
     (kd, ks)
 }
 
-/// Eq. 6: GGX D(n·h) with α = σ².
+/// Eq. 1's D: GGX D(n·h) with α = σ².
 pub fn ggx_d(n_dot_h: Tensor<2>, sigma: Tensor<2>) -> Tensor<2> {
     let a2 = sigma.powi_scalar(4);
     let nh = n_dot_h.clamp(0.0, 1.0);
@@ -23,7 +23,7 @@ pub fn ggx_d(n_dot_h: Tensor<2>, sigma: Tensor<2>) -> Tensor<2> {
     a2 / (d.clone() * d).mul_scalar(PI)
 }
 
-/// Eq. 7 over (n·l)(n·v): G_s = 1/((n·v(1−k)+k)(n·l(1−k)+k)), k = (σ+1)²/8.
+/// Eq. 1's G (Schlick-GGX, UE4 remap) over (n·l)(n·v): G_s = 1/((n·v(1−k)+k)(n·l(1−k)+k)), k = (σ+1)²/8.
 pub fn g_schlick_over(n_dot_v: Tensor<2>, n_dot_l: Tensor<2>, sigma: Tensor<2>) -> Tensor<2> {
     let k = sigma.add_scalar(1.0).powi_scalar(2).div_scalar(8.0);
     let one_k = k.clone().neg().add_scalar(1.0);

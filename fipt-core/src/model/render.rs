@@ -1,4 +1,4 @@
-//! The factorised renderer (paper Eq. 9–12): pred = k_d·L_d + k_s·L_s0(σ) + L_s1(σ), with the
+//! The factorised renderer (paper Eq. 5, 8 and 12): pred = k_d·L_d + k_s·L_s0(σ) + L_s1(σ), with the
 //! specular shadings linearly interpolated in σ over the cached levels linspace(0.02, 1, 6),
 //! and the emission-masked composite.
 //!
@@ -31,7 +31,7 @@ impl Shadings {
     }
 }
 
-/// Interpolation weights over the roughness levels, [N,6]: the hat functions
+/// Eq. 8's interpolation weights over the roughness levels, [N,6]: the hat functions
 /// w_j = max(0, 1 − |r − j|) with r = (σ − 0.02)/0.98 · 5. They equal the reference's
 /// floor/ceil blend, gradient included (zero at the level values).
 pub fn roughness_weights(sigma: Tensor<2>) -> Tensor<2> {
@@ -51,7 +51,7 @@ pub fn lerp_levels(ls: Tensor<3>, w: Tensor<2>) -> Tensor<2> {
     (ls * w.reshape([n, l, 1])).sum_dim(1).reshape([n, c])
 }
 
-/// Eq. 9–11: the factorised render. Returns (prediction, specular part k_s·L_s0 + L_s1).
+/// Eq. 5 with Eq. 8's lerp: the factorised render. Returns (prediction, specular part k_s·L_s0 + L_s1).
 pub fn render(
     kd: Tensor<2>,
     ks: Tensor<2>,

@@ -33,8 +33,16 @@ pub struct Metrics {
     pub per_view: Vec<ViewScore>,
 }
 
+/// PSNR of a summed squared error over `n` values, capped at 100 dB; NaN when the error is not
+/// finite (a NaN prediction must not score as perfect: `f64::max` would drop it).
 fn psnr(se: f64, n: usize) -> Option<f64> {
-    (n > 0).then(|| -10.0 * (se / n as f64).max(1e-10).log10())
+    (n > 0).then(|| {
+        if se.is_finite() {
+            -10.0 * (se / n as f64).max(1e-10).log10()
+        } else {
+            f64::NAN
+        }
+    })
 }
 
 /// Scores one view; figures whose GT map is missing are None.
@@ -234,4 +242,277 @@ pub fn comparison_figure(view: &View, m: &ViewMaps) -> (usize, usize, Vec<f32>) 
         }
     }
     (w * cols, 2 * h, out)
+}
+
+#[cfg(test)]
+mod tests {
+    //! Hand-made 4×2 views whose scores are worked out by hand (pixel p = row·4 + col).
+    use super::*;
+    use fipt_core::scene::{Camera, Image};
+    use glam::DVec3;
+    use std::collections::BTreeMap;
+
+    const W: usize = 4;
+    const H: usize = 2;
+    const N: usize = W * H;
+
+    fn img(channels: usize, data: &[f32]) -> Image {
+        Image::from_data(W, H, channels, data.to_vec())
+    }
+
+    fn flat(px: [[f32; 3]; N]) -> Vec<f32> {
+        px.iter().flatten().copied().collect()
+    }
+
+    // Ground truth. Pixel 7 is the only emitter.
+    const GT_SIGMA: [f32; N] = [0.6, 0.1, 1.0, 0.59, 1.2, 0.3, 0.7, 1.0];
+    const GT_KD: [[f32; 3]; N] = [
+        [0.5, 0.5, 0.5],
+        [0.4, 0.4, 0.4],
+        [1.4, 0.2, 0.2],
+        [0.4, 0.4, 0.4],
+        [0.3, 0.3, 0.3],
+        [0.4, 0.4, 0.4],
+        [0.2, 0.2, 0.9],
+        [0.0, 0.0, 0.0],
+    ];
+    const GT_ALBEDO: [[f32; 3]; N] = [
+        [0.5, 0.5, 0.5],
+        [1.3, 0.4, 0.4],
+        [0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5],
+        [0.0, 0.0, 0.0],
+    ];
+    const GT_EMIT: [[f32; 3]; N] = [
+        [0.0; 3],
+        [0.0; 3],
+        [0.0; 3],
+        [0.0; 3],
+        [0.0; 3],
+        [0.0; 3],
+        [0.0; 3],
+        [2.0, 1.0, 0.0],
+    ];
+
+    fn gt_view(kinds: &[MapKind]) -> View {
+        let mut maps = BTreeMap::new();
+        for &k in kinds {
+            let m = match k {
+                MapKind::DiffCol => img(3, &flat(GT_KD)),
+                MapKind::Roughness => img(1, &GT_SIGMA),
+                MapKind::Albedo => img(3, &flat(GT_ALBEDO)),
+                MapKind::Emit => img(3, &flat(GT_EMIT)),
+                _ => unreachable!(),
+            };
+            maps.insert(k, m);
+        }
+        View {
+            index: 3,
+            camera: Camera::look_at_fov(DVec3::ZERO, DVec3::Z, DVec3::Y, 1.0, W, H),
+            image: Image::new(W, H, 3),
+            maps,
+        }
+    }
+
+    const ALL: [MapKind; 4] = [
+        MapKind::DiffCol,
+        MapKind::Roughness,
+        MapKind::Albedo,
+        MapKind::Emit,
+    ];
+
+    fn maps(kd: Vec<f32>, sigma: Vec<f32>, albedo: Vec<f32>, emit: Vec<f32>) -> ViewMaps {
+        ViewMaps {
+            width: W,
+            height: H,
+            kd,
+            sigma,
+            metallic: vec![0.0; N],
+            base: vec![0.0; 3 * N],
+            albedo,
+            emit,
+        }
+    }
+
+    fn db(mse: f64) -> f64 {
+        -10.0 * mse.log10()
+    }
+
+    fn close(a: Option<f64>, b: f64, tol: f64, what: &str) {
+        let a = a.unwrap_or_else(|| panic!("{what} is None"));
+        assert!((a - b).abs() <= tol, "{what}: {a} vs expected {b}");
+    }
+
+    #[test]
+    fn psnr_of_mse_with_floor_and_empty_mask() {
+        close(psnr(0.03, 3), 20.0, 1e-9, "mse 0.01");
+        close(psnr(4.0, 4), 0.0, 1e-9, "mse 1");
+        close(psnr(0.0, 5), 100.0, 1e-9, "mse 0 hits the 1e-10 floor");
+        assert!(
+            psnr(f64::NAN, 3).unwrap().is_nan(),
+            "NaN must not score 100 dB"
+        );
+        assert!(psnr(f64::INFINITY, 3).unwrap().is_nan());
+        close(psnr(1e-13, 1), 100.0, 1e-9, "mse below the floor");
+        assert_eq!(psnr(0.0, 0), None);
+    }
+
+    /// Every clamp, mask and exclusion of `score_view`, with the squared errors summed by hand.
+    #[test]
+    fn hand_computed_scores() {
+        let v = gt_view(&ALL);
+        // k_d mask: non-emitter and GT σ ≥ 0.6 → pixels 0 (σ = 0.6 exactly), 2, 4, 6.
+        // Pixels 1, 3 (σ = 0.59), 5 and the emitter 7 get large errors that must not count.
+        let kd = flat([
+            [0.6, 0.5, 0.5],  // 0: 0.1² = 0.01
+            [0.9, 0.9, 0.9],  // 1: excluded (σ 0.1)
+            [1.0, 0.2, 0.2],  // 2: GT 1.4 clamps to 1 → 0
+            [0.9, 0.9, 0.9],  // 3: excluded (σ 0.59)
+            [-0.5, 0.3, 0.3], // 4: prediction clamps to 0 → 0.3² = 0.09
+            [0.9, 0.9, 0.9],  // 5: excluded (σ 0.3)
+            [0.2, 0.2, 1.7],  // 6: prediction clamps to 1 → 0.1² = 0.01
+            [0.9, 0.9, 0.9],  // 7: emitter
+        ]);
+        // σ on non-emitter pixels 0..7, both sides clamped to [0.2, 1]:
+        // 0: 0; 1: GT 0.1→0.2 vs 0.2 → 0; 2: 1.0 vs 1.5→1 → 0; 3: 0; 4: GT 1.2→1 vs 0.5 → 0.25;
+        // 5: 0.3 vs 0.1→0.2 → 0.01; 6: 0; 7: emitter (would add (1 − 0.2)²).
+        let sigma = vec![0.6, 0.2, 1.5, 0.59, 0.5, 0.1, 0.7, 0.0];
+        // a′ on non-emitter pixels, clamped to [0, 1]: 1: GT 1.3→1 vs 1 → 0; 3: 0.3² = 0.09;
+        // 5: −0.2→0 vs 0.5 → 0.25; 7: emitter.
+        let mut albedo = flat(GT_ALBEDO);
+        albedo[3..6].copy_from_slice(&[1.0, 0.4, 0.4]);
+        albedo[9..12].copy_from_slice(&[0.5, 0.5, 0.8]);
+        albedo[15..18].copy_from_slice(&[-0.2, 0.5, 0.5]);
+        albedo[21..24].copy_from_slice(&[5.0, 5.0, 5.0]);
+        // Emission: the true emitter 7 is found (ln(1+e) = 1 in R), pixel 3 is a false emitter
+        // (ln(1+e) = 2 in B), pixel 0 is negative (not an emitter, clamped to 0 in the log).
+        let e1 = std::f32::consts::E - 1.0;
+        let e2 = std::f32::consts::E * std::f32::consts::E - 1.0;
+        let mut emit = vec![0.0; 3 * N];
+        emit[0] = -1.0;
+        emit[9..12].copy_from_slice(&[0.0, 0.0, e2]);
+        emit[21..24].copy_from_slice(&[e1, 1.0, 0.0]);
+
+        let s = score_view(&v, &maps(kd, sigma, albedo, emit));
+        assert_eq!(s.view, 3);
+        close(s.kd_psnr, db(0.11 / 12.0), 1e-4, "kd_psnr");
+        close(s.roughness_psnr, db(0.26 / 7.0), 1e-4, "roughness_psnr");
+        close(s.albedo_psnr, db(0.34 / 21.0), 1e-4, "albedo_psnr");
+        // GT emitters {7}, predicted {3, 7}: IoU 1/2.
+        close(s.emission_iou, 0.5, 1e-12, "emission_iou");
+        // Over all 3·8 values: pixel 7 R (1 − ln 3)², G (ln 2 − ln 2)² = 0, pixel 3 B 2².
+        let ln3 = 3f64.ln();
+        close(
+            s.emission_log_l2,
+            ((1.0 - ln3).powi(2) + 4.0) / 24.0,
+            1e-6,
+            "emission_log_l2",
+        );
+    }
+
+    #[test]
+    fn ground_truth_scores_the_cap() {
+        let v = gt_view(&ALL);
+        let m = maps(
+            flat(GT_KD),
+            GT_SIGMA.to_vec(),
+            flat(GT_ALBEDO),
+            flat(GT_EMIT),
+        );
+        let s = score_view(&v, &m);
+        for (name, x) in [
+            ("kd", s.kd_psnr),
+            ("albedo", s.albedo_psnr),
+            ("roughness", s.roughness_psnr),
+        ] {
+            assert_eq!(x, Some(100.0), "{name}");
+        }
+        assert_eq!(s.emission_iou, Some(1.0));
+        assert_eq!(s.emission_log_l2, Some(0.0));
+    }
+
+    /// k_d = 0.5, σ = 1, a′ = 0.5, no emission everywhere.
+    #[test]
+    fn constant_predictor() {
+        let v = gt_view(&ALL);
+        let m = maps(
+            vec![0.5; 3 * N],
+            vec![1.0; N],
+            vec![0.5; 3 * N],
+            vec![0.0; 3 * N],
+        );
+        let s = score_view(&v, &m);
+        // k_d on pixels 0, 2, 4, 6 (GT clamped): 0 + (0.25 + 0.09 + 0.09) + 3·0.04
+        // + (0.09 + 0.09 + 0.16) = 0.89 over 12 values.
+        close(s.kd_psnr, db(0.89 / 12.0), 1e-4, "kd_psnr");
+        // σ = 1 vs clamped GT [0.6, 0.2, 1, 0.59, 1, 0.3, 0.7]:
+        // 0.16 + 0.64 + 0 + 0.1681 + 0 + 0.49 + 0.09 = 1.5481 over 7.
+        close(s.roughness_psnr, db(1.5481 / 7.0), 1e-4, "roughness_psnr");
+        // a′ = 0.5 vs clamped GT: only pixel 1 differs, (1 − 0.5)² + 2·0.1² = 0.27 over 21.
+        close(s.albedo_psnr, db(0.27 / 21.0), 1e-4, "albedo_psnr");
+        // No predicted emitter: IoU 0; log-L2 = (ln² 3 + ln² 2) / 24.
+        close(s.emission_iou, 0.0, 0.0, "emission_iou");
+        let expect = (3f64.ln().powi(2) + 2f64.ln().powi(2)) / 24.0;
+        close(s.emission_log_l2, expect, 1e-6, "emission_log_l2");
+    }
+
+    #[test]
+    fn missing_maps_and_views_without_emitters_give_none() {
+        let m = maps(
+            flat(GT_KD),
+            GT_SIGMA.to_vec(),
+            flat(GT_ALBEDO),
+            flat(GT_EMIT),
+        );
+        // No Emit map: no emission figures, the rest still scored.
+        let s = score_view(
+            &gt_view(&[MapKind::DiffCol, MapKind::Roughness, MapKind::Albedo]),
+            &m,
+        );
+        assert!(s.emission_iou.is_none() && s.emission_log_l2.is_none());
+        assert!(s.kd_psnr.is_some() && s.albedo_psnr.is_some() && s.roughness_psnr.is_some());
+        // An Emit map without emitters: None too, even though the prediction has emission.
+        let mut v = gt_view(&ALL);
+        v.maps.insert(MapKind::Emit, img(3, &[0.0; 3 * N]));
+        let s = score_view(&v, &m);
+        assert!(s.emission_iou.is_none() && s.emission_log_l2.is_none());
+        // k_d needs both DiffCol and Roughness.
+        let s = score_view(&gt_view(&[MapKind::DiffCol, MapKind::Emit]), &m);
+        assert!(s.kd_psnr.is_none() && s.roughness_psnr.is_none() && s.albedo_psnr.is_none());
+        assert_eq!(s.emission_iou, Some(1.0));
+        let s = score_view(&gt_view(&[MapKind::Roughness]), &m);
+        assert!(s.kd_psnr.is_none() && s.albedo_psnr.is_none());
+        assert_eq!(s.roughness_psnr, Some(100.0));
+    }
+
+    #[test]
+    fn summarize_averages_present_values() {
+        let vs = |view, kd, iou| ViewScore {
+            view,
+            kd_psnr: kd,
+            albedo_psnr: Some(10.0 * view as f64),
+            roughness_psnr: None,
+            emission_iou: iou,
+            emission_log_l2: None,
+        };
+        let m = summarize(vec![
+            vs(0, Some(10.0), None),
+            vs(1, None, Some(0.25)),
+            vs(2, Some(40.0), None),
+            vs(3, None, None),
+        ]);
+        assert_eq!(m.kd_psnr, Some(25.0));
+        assert_eq!(m.albedo_psnr, Some(15.0));
+        assert_eq!(m.roughness_psnr, None);
+        assert_eq!(m.emission_iou, Some(0.25));
+        assert_eq!(m.emission_log_l2, None);
+        assert_eq!(
+            m.per_view.iter().map(|s| s.view).collect::<Vec<_>>(),
+            [0, 1, 2, 3]
+        );
+        assert!(summarize(Vec::new()).kd_psnr.is_none());
+    }
 }

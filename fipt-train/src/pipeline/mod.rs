@@ -220,6 +220,18 @@ pub fn eval(scene: &Path, out: &Path) -> Result<EvalReport> {
                 dir.display()
             )
         })?;
+    for (k, (m, v)) in maps.iter().zip(&ds.train.views).enumerate() {
+        if (m.width, m.height) != (v.image.width, v.image.height) {
+            anyhow::bail!(
+                "{}: the maps of view {k} are {}x{}, the scene's images {}x{}",
+                dir.display(),
+                m.width,
+                m.height,
+                v.image.width,
+                v.image.height
+            );
+        }
+    }
     let hits = bake::cast_split(&accel, &ds.mesh, &ds.train);
     let (metrics, parts) = score(&ds, &hits, &maps);
     let r = EvalReport { metrics, parts };

@@ -1,0 +1,141 @@
+//! The three scene layouts describe the same cameras: fipt-room (FIPT synthetic layout) rewritten
+//! as a FIPT real scene (`cam.txt` origin / look-at / up + `K_list.txt`) and as a nerfstudio
+//! scene (`transforms.json`, OpenGL c2w columns right, up, back, position) must load into the same
+//! pixel-centre rays and the same images.
+
+use fipt_core::scene::dataset::Layout;
+use fipt_core::scene::{Camera, Dataset, LoadOptions};
+use serde_json::json;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn scene_dir() -> PathBuf {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/fipt-room");
+    assert!(p.join("scene.obj").exists(), "missing {}", p.display());
+    p
+}
+
+fn link(src: &Path, dst: &Path) {
+    std::os::unix::fs::symlink(src, dst)
+        .unwrap_or_else(|e| panic!("symlink {} -> {}: {e}", dst.display(), src.display()));
+}
+
+fn v3(v: glam::DVec3) -> String {
+    format!("{:?} {:?} {:?}", v.x, v.y, v.z)
+}
+
+/// FIPT real layout: per camera origin, a look-at point 2.5 m ahead and an up vector that is
+/// not orthogonal to the view direction (the loader orthogonalises it, as FIPT does).
+fn write_real(dir: &Path, scene: &Path, cams: &[&Camera]) {
+    std::fs::create_dir_all(dir).unwrap();
+    link(&scene.join("scene.obj"), &dir.join("scene.obj"));
+    link(&scene.join("train/Image"), &dir.join("Image"));
+    let (mut cam, mut k) = (format!("{}\n", cams.len()), format!("{}\n", cams.len()));
+    for c in cams {
+        let (down, fwd) = (c.rotation.y_axis, c.rotation.z_axis);
+        writeln!(cam, "{}", v3(c.origin)).unwrap();
+        writeln!(cam, "{}", v3(c.origin + 2.5 * fwd)).unwrap();
+        writeln!(cam, "{}", v3(-down + 0.3 * fwd)).unwrap();
+        writeln!(k, "{:?} 0 {:?}", c.fx, c.cx).unwrap();
+        writeln!(k, "0 {:?} {:?}", c.fy, c.cy).unwrap();
+        writeln!(k, "0 0 1").unwrap();
+    }
+    std::fs::write(dir.join("cam.txt"), cam).unwrap();
+    std::fs::write(dir.join("K_list.txt"), k).unwrap();
+}
+
+/// nerfstudio layout: shared intrinsics at the top level, c2w = (right, up, back, position);
+/// every other file path without its extension (the loader adds `.exr`).
+fn write_nerfstudio(dir: &Path, scene: &Path, cams: &[&Camera]) {
+    std::fs::create_dir_all(dir).unwrap();
+    link(&scene.join("scene.obj"), &dir.join("scene.obj"));
+    link(&scene.join("train/Image"), &dir.join("images"));
+    let c0 = cams[0];
+    let frames: Vec<_> = cams
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let r = c.rotation;
+            let cols = [r.x_axis, -r.y_axis, -r.z_axis, c.origin];
+            let m: Vec<Vec<f64>> = (0..3)
+                .map(|i| cols.iter().map(|v| v[i]).collect())
+                .chain([vec![0.0, 0.0, 0.0, 1.0]])
+                .collect();
+            let ext = if k % 2 == 0 { ".exr" } else { "" };
+            json!({"file_path": format!("images/{k:03}_0001{ext}"), "transform_matrix": m})
+        })
+        .collect();
+    let t = json!({
+        "camera_model": "OPENCV",
+        "fl_x": c0.fx, "fl_y": c0.fy, "cx": c0.cx, "cy": c0.cy,
+        "w": c0.width, "h": c0.height,
+        "frames": frames,
+    });
+    std::fs::write(
+        dir.join("transforms.json"),
+        serde_json::to_string_pretty(&t).unwrap(),
+    )
+    .unwrap();
+}
+
+#[test]
+fn real_and_nerfstudio_layouts_give_the_synthetic_rays() {
+    let scene = scene_dir();
+    let opts = LoadOptions {
+        maps: vec![],
+        val: false,
+    };
+    let syn = Dataset::load(&scene, &opts).unwrap();
+    assert_eq!(syn.layout, Layout::FiptSynthetic);
+    let cams: Vec<&Camera> = syn.train.views.iter().map(|v| &v.camera).collect();
+    assert_eq!(cams.len(), 48);
+
+    let tmp = std::env::temp_dir().join(format!("fipt-layouts-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    write_real(&tmp.join("real"), &scene, &cams);
+    write_nerfstudio(&tmp.join("ns"), &scene, &cams);
+
+    for (name, layout) in [("real", Layout::FiptReal), ("ns", Layout::Nerfstudio)] {
+        let ds = Dataset::load(&tmp.join(name), &opts).unwrap();
+        assert_eq!(ds.layout, layout);
+        assert_eq!(ds.mesh.num_triangles(), syn.mesh.num_triangles());
+        assert_eq!(
+            (ds.train.width, ds.train.height),
+            (syn.train.width, syn.train.height)
+        );
+        assert_eq!(ds.train.views.len(), syn.train.views.len(), "{name}");
+        let mut worst = 0f32;
+        for (a, b) in syn.train.views.iter().zip(&ds.train.views) {
+            assert_eq!(a.index, b.index);
+            let (ca, cb) = (&a.camera, &b.camera);
+            assert_eq!((cb.width, cb.height), (ca.width, ca.height));
+            let o = (ca.origin_f32() - cb.origin_f32()).abs().max_element();
+            assert!(o <= 1e-4, "{name}: view {}: origin differs by {o}", a.index);
+            for row in 0..ca.height {
+                for col in 0..ca.width {
+                    let d = (ca.pixel_direction(row, col) - cb.pixel_direction(row, col))
+                        .abs()
+                        .max_element();
+                    worst = worst.max(d);
+                    assert!(
+                        d <= 1e-4,
+                        "{name}: view {} pixel ({row}, {col}): direction differs by {d}",
+                        a.index
+                    );
+                }
+            }
+            // Same photo (the real loader clamps negative radiance to 0; renders have none).
+            assert!(
+                a.image
+                    .data
+                    .iter()
+                    .zip(&b.image.data)
+                    .all(|(x, y)| x.max(0.0) == *y),
+                "{name}: view {}: image differs",
+                a.index
+            );
+        }
+        eprintln!("{name}: max direction difference {worst:e}");
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
