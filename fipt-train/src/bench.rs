@@ -104,25 +104,52 @@ fn procedural_cameras(mesh: &Mesh, n: usize) -> Vec<Camera> {
         .collect()
 }
 
-fn bench_rays(accel: &Accel, rays: &[(Vec3, Vec3)], reps: usize) -> Result<Value> {
+/// Median time and throughput of one thread count.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Throughput {
+    pub median_s: f64,
+    pub rays_per_s: f64,
+    pub times_s: Vec<f64>,
+}
+
+impl Throughput {
+    fn of(rays: u64, times: Vec<f64>) -> Self {
+        let median_s = median(times.clone());
+        Self {
+            median_s,
+            rays_per_s: rays as f64 / median_s,
+            times_s: times,
+        }
+    }
+}
+
+/// Closest-hit throughput of one ray set with 1 and 2 threads.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RayBench {
+    pub threads_1: Throughput,
+    pub threads_2: Throughput,
+    pub rays: usize,
+    pub hit_fraction: f64,
+}
+
+fn bench_rays(accel: &Accel, rays: &[(Vec3, Vec3)], reps: usize) -> Result<RayBench> {
     let mut out = vec![0f32; rays.len()];
-    let mut res = serde_json::Map::new();
     let out_ptr = std::sync::Mutex::new(&mut out);
-    for threads in [1usize, 2] {
+    let time = |threads: usize| -> Result<Throughput> {
         let times = time_on_pool(threads, reps, &|| {
             let mut o = out_ptr.lock().unwrap();
             trace_all(accel, rays, &mut o);
         })?;
-        let med = median(times.clone());
-        res.insert(
-            format!("threads_{threads}"),
-            json!({"median_s": med, "rays_per_s": rays.len() as f64 / med, "times_s": times}),
-        );
-    }
+        Ok(Throughput::of(rays.len() as u64, times))
+    };
+    let (threads_1, threads_2) = (time(1)?, time(2)?);
     let hit = out.iter().filter(|t| t.is_finite()).count() as f64 / rays.len().max(1) as f64;
-    res.insert("rays".into(), json!(rays.len()));
-    res.insert("hit_fraction".into(), json!(hit));
-    Ok(Value::Object(res))
+    Ok(RayBench {
+        threads_1,
+        threads_2,
+        rays: rays.len(),
+        hit_fraction: hit,
+    })
 }
 
 /// `bench trace`: closest-hit throughput on incoherent and camera rays, 1 and 2 threads.
@@ -158,8 +185,8 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
         "triangles": mesh.num_triangles(),
         "bvh_build_s": build_s,
         "reps": reps,
-        "incoherent": inc,
-        "camera": cam,
+        "incoherent": &inc,
+        "camera": &cam,
     });
     if as_json {
         println!("{}", serde_json::to_string_pretty(&r)?);
@@ -168,13 +195,13 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
             "scene {name}: {} triangles, BVH build {build_s:.3} s",
             mesh.num_triangles()
         );
-        for kind in ["incoherent", "camera"] {
-            for t in ["threads_1", "threads_2"] {
+        for (kind, b) in [("incoherent", &inc), ("camera", &cam)] {
+            for (t, x) in [("threads_1", &b.threads_1), ("threads_2", &b.threads_2)] {
                 println!(
                     "{kind:>10} {t}: {:.2} M rays/s ({} rays, hit fraction {:.3})",
-                    r[kind][t]["rays_per_s"].as_f64().unwrap_or(0.0) / 1e6,
-                    r[kind]["rays"],
-                    r[kind]["hit_fraction"].as_f64().unwrap_or(0.0)
+                    x.rays_per_s / 1e6,
+                    b.rays,
+                    b.hit_fraction
                 );
             }
         }
@@ -374,28 +401,24 @@ pub fn bake(as_json: bool, reps: usize) -> Result<()> {
     let lf = build_light_field(&views, cfg.voxel_res);
     // Rays actually cast (GGX samples below the horizon cast none); the same every repetition.
     let rays = bake_views(&accel, &lf, &views, &cfg, &|_| {}).rays;
-    let mut res = serde_json::Map::new();
-    for threads in [1usize, 2] {
+    let time = |threads: usize| -> Result<Throughput> {
         let times = time_on_pool(threads, reps, &|| {
             bake_views(&accel, &lf, &views, &cfg, &|_| {});
         })?;
-        let med = median(times.clone());
-        res.insert(
-            format!("threads_{threads}"),
-            json!({"median_s": med, "rays_per_s": rays as f64 / med, "times_s": times}),
-        );
-    }
-    let r = json!({"bench": "bake", "scene": "builtin:procedural-room", "triangles": room.mesh.num_triangles(),
-        "views": views.len(), "secondary_rays": rays, "samples": cfg.samples, "results": res});
+        Ok(Throughput::of(rays, times))
+    };
+    let (t1, t2) = (time(1)?, time(2)?);
     if as_json {
+        let r = json!({"bench": "bake", "scene": "builtin:procedural-room", "triangles": room.mesh.num_triangles(),
+            "views": views.len(), "secondary_rays": rays, "samples": cfg.samples,
+            "results": {"threads_1": &t1, "threads_2": &t2}});
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
-        for t in ["threads_1", "threads_2"] {
+        for (t, x) in [("threads_1", &t1), ("threads_2", &t2)] {
             println!(
-                "bake {t}: {:.2} M rays/s ({} rays, median {:.2} s)",
-                r["results"][t]["rays_per_s"].as_f64().unwrap_or(0.0) / 1e6,
-                rays,
-                r["results"][t]["median_s"].as_f64().unwrap_or(0.0)
+                "bake {t}: {:.2} M rays/s ({rays} rays, median {:.2} s)",
+                x.rays_per_s / 1e6,
+                x.median_s
             );
         }
     }

@@ -12,4 +12,5 @@ pub mod metrics;
 pub mod output;
 pub mod pipeline;
 pub mod progress;
+pub mod render;
 pub mod report;

@@ -88,6 +88,41 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Path-traced images of a scene's cameras (`--truth`: the true scene of scene_meta.json).
+    Render {
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Render the true scene (materials, textures and emitters of scene_meta.json).
+        #[arg(long, required = true)]
+        truth: bool,
+        /// Which cameras: train or val.
+        #[arg(long, default_value = "val")]
+        split: String,
+        /// Only these views (comma-separated; default all).
+        #[arg(long, value_delimiter = ',')]
+        views: Vec<usize>,
+        #[arg(long, default_value_t = 512)]
+        spp: usize,
+        /// Maximum path length in segments (Mitsuba's max_depth).
+        #[arg(long, default_value_t = 7)]
+        max_depth: usize,
+        /// relight.json: emitters off and new emitters added; renders go to Relight/.
+        #[arg(long)]
+        relight: Option<PathBuf>,
+        /// Emitter selection for next-event estimation: uniform, area or power.
+        #[arg(long, default_value = "power")]
+        light_selection: fipt_bake::emitters::LightSelection,
+        /// Russian roulette from this depth on (default off).
+        #[arg(long)]
+        rr_depth: Option<usize>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// No progress bar; print render.json to stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Print the default configuration (`configs/default.json`) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
@@ -167,6 +202,45 @@ fn main() {
             }
             Ok(())
         }),
+        Cmd::Render {
+            scene,
+            out,
+            truth: _,
+            split,
+            views,
+            spp,
+            max_depth,
+            relight,
+            light_selection,
+            rr_depth,
+            seed,
+            json,
+        } => {
+            let job = fipt_train::render::RenderJob {
+                scene,
+                out,
+                split,
+                views,
+                relight,
+                selection: light_selection,
+                path: fipt_bake::integrators::path::PathConfig {
+                    spp,
+                    max_depth,
+                    rr_depth,
+                    seed,
+                    ..Default::default()
+                },
+                quiet: json,
+            };
+            fipt_train::render::render(&job).and_then(|r| {
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&r)?);
+                } else {
+                    r.print(&job.out);
+                }
+                Ok(())
+            })
+        }
         Cmd::DefaultConfig => serde_json::to_string_pretty(&fipt_train::config::Config::default())
             .map(|s| println!("{s}"))
             .map_err(Into::into),

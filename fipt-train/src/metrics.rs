@@ -5,6 +5,7 @@
 
 use fipt_core::brdf::factorised_render;
 use fipt_core::scene::{MapKind, View};
+use fipt_core::shading::ShadingLayout;
 
 /// Display tone map of the reference's comparisons: clip(x, 0, 1)^(1/2.2).
 #[inline]
@@ -46,7 +47,7 @@ pub struct GtRenderPsnr {
     pub specular: Option<f64>,
 }
 
-/// The factorised render of a view from its baked `shading` (39 per pixel) with ground-truth
+/// The factorised render of a view from its baked `shading` (`ShadingLayout`) with ground-truth
 /// k_d (`DiffCol`), k_s (from `BaseColor`, `Metallic`), σ (`Roughness`), plus `Emit`.
 /// Needs those maps; returns None where one is missing.
 pub fn gt_render(view: &View, shading: &[f32]) -> Option<Vec<f32>> {
@@ -64,7 +65,7 @@ pub fn gt_render(view: &View, shading: &[f32]) -> Option<Vec<f32>> {
             kd.rgb(p),
             ks,
             rough.scalar(p),
-            &shading[39 * p..39 * (p + 1)],
+            ShadingLayout::pixel(shading, p),
         );
         let e = emit.rgb(p);
         for c in 0..3 {

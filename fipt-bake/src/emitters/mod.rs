@@ -1,7 +1,10 @@
-//! Emitters: extraction of emissive triangles from the trained emission mask (paper §4.4).
+//! Emitters: extraction of emissive triangles from the trained emission mask (paper §4.4), and
+//! the area lights the path tracer samples.
 //!
-//! Owns: `extract`. Must not touch: training.
+//! Owns: `extract`, `lights`. Must not touch: training.
 
 pub mod extract;
+pub mod lights;
 
 pub use extract::{Emitter, ExtractConfig, ObservedView, extract, radiance_per_triangle};
+pub use lights::{AreaLight, EmitterSet, LightSample, LightSelection};

@@ -1,5 +1,7 @@
 //! Estimators of light-transport integrals over the scene mesh.
 //!
-//! Owns: `bake`, the shading estimators of Eq. 9. Must not touch: files, tensors.
+//! Owns: `bake`, the shading estimators of Eq. 9; `path`, the wavefront path tracer. Must not
+//! touch: files, tensors.
 
 pub mod bake;
+pub mod path;

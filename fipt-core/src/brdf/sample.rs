@@ -112,3 +112,157 @@ pub fn directional_albedo_quadrature(brdf: &Brdf, wo: Vec3, n_theta: usize, n_ph
     }
     s * (2.0 * PI / (n_theta * n_phi) as f32)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+
+    /// Some rough-to-glossy materials and view directions (local frame).
+    fn cases() -> Vec<(Brdf, Vec3)> {
+        let mut v = Vec::new();
+        for (a, s, m) in [
+            (0.8, 1.0, 0.0),
+            (0.5, 0.6, 0.3),
+            (0.9, 0.3, 1.0),
+            (0.2, 0.45, 0.0),
+        ] {
+            for cos_o in [0.9f32, 0.4] {
+                let wo = Vec3::new((1.0 - cos_o * cos_o).sqrt(), 0.0, cos_o);
+                v.push((Brdf::from_material(Vec3::splat(a), s, m), wo));
+            }
+        }
+        v
+    }
+
+    /// ∫ over the upper hemisphere of the mixture pdf, by midpoint quadrature in (cos θ, φ)
+    /// over `[mu0, mu1] × [phi0, phi1]`.
+    fn pdf_integral(b: &Brdf, wo: Vec3, mu: (f64, f64), phi: (f64, f64), n: usize) -> f64 {
+        let mut s = 0.0f64;
+        for i in 0..n {
+            let m = mu.0 + (mu.1 - mu.0) * (i as f64 + 0.5) / n as f64;
+            let st = (1.0 - m * m).max(0.0).sqrt();
+            for j in 0..n {
+                let p = phi.0 + (phi.1 - phi.0) * (j as f64 + 0.5) / n as f64;
+                let wi = Vec3::new((st * p.cos()) as f32, (st * p.sin()) as f32, m as f32);
+                s += b.pdf(wo, wi) as f64;
+            }
+        }
+        s * (mu.1 - mu.0) * (phi.1 - phi.0) / (n * n) as f64
+    }
+
+    /// Share of `sample_f` draws that land below the horizon (weight 0, no direction).
+    fn below_horizon(b: &Brdf, wo: Vec3, n: usize, rng: &mut Rng) -> f64 {
+        let below = (0..n)
+            .filter(|_| {
+                let (wi, _, _) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                wi.z <= 0.0
+            })
+            .count();
+        below as f64 / n as f64
+    }
+
+    /// The pdf integrates to 1: its integral over the upper hemisphere plus the share of
+    /// samples the GGX half of the mixture sends below the horizon.
+    #[test]
+    fn pdf_integrates_to_one() {
+        let mut rng = Rng::new(3, 1);
+        for (b, wo) in cases() {
+            let up = pdf_integral(&b, wo, (0.0, 1.0), (0.0, std::f64::consts::TAU), 1200);
+            let below = below_horizon(&b, wo, 400_000, &mut rng);
+            assert!(
+                (up + below - 1.0).abs() < 6e-3,
+                "σ {}: ∫pdf {up:.5} + below {below:.5}",
+                b.sigma
+            );
+        }
+    }
+
+    /// `sample_f`'s weight is f·cos/pdf at the sampled direction, and its pdf is `pdf`.
+    #[test]
+    fn sample_weight_is_f_cos_over_pdf() {
+        let mut rng = Rng::new(5, 1);
+        for (b, wo) in cases() {
+            for _ in 0..2000 {
+                let (wi, w, pdf) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                if wi.z <= 0.0 {
+                    assert_eq!(w, Vec3::ZERO);
+                    continue;
+                }
+                assert!((pdf - b.pdf(wo, wi)).abs() <= 1e-5 * pdf.max(1.0));
+                let want = b.f(wo, wi) * wi.z / pdf;
+                assert!(
+                    (w - want).length() <= 1e-4 * want.length().max(1e-3),
+                    "{w} vs {want}"
+                );
+            }
+        }
+    }
+
+    /// Upper quantile of χ² with `k` degrees of freedom at z standard deviations
+    /// (Wilson–Hilferty).
+    fn chi2_quantile(k: f64, z: f64) -> f64 {
+        let a = 2.0 / (9.0 * k);
+        k * (1.0 - a + z * a.sqrt()).powi(3)
+    }
+
+    /// χ² test of the sampled directions against `pdf`: 12 × 16 bins in (cos θ, φ) plus one
+    /// bin for the samples below the horizon, bins with fewer than 5 expected merged, 3.1σ
+    /// (p ≈ 0.001) critical value.
+    #[test]
+    fn sampled_directions_follow_the_pdf() {
+        use std::f64::consts::TAU;
+        let (nt, np, n) = (12usize, 16usize, 300_000usize);
+        let mut rng = Rng::new(9, 1);
+        for (b, wo) in cases() {
+            let mut counts = vec![0f64; nt * np + 1];
+            for _ in 0..n {
+                let (wi, _, _) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                if wi.z <= 0.0 {
+                    counts[nt * np] += 1.0;
+                    continue;
+                }
+                let it = ((wi.z as f64) * nt as f64).min(nt as f64 - 1.0) as usize;
+                let ph = (wi.y as f64).atan2(wi.x as f64).rem_euclid(TAU);
+                let ip = (ph / TAU * np as f64).min(np as f64 - 1.0) as usize;
+                counts[it * np + ip] += 1.0;
+            }
+            let mut expected = Vec::with_capacity(nt * np + 1);
+            for it in 0..nt {
+                for ip in 0..np {
+                    let mu = (it as f64 / nt as f64, (it + 1) as f64 / nt as f64);
+                    let phi = (
+                        TAU * ip as f64 / np as f64,
+                        TAU * (ip + 1) as f64 / np as f64,
+                    );
+                    expected.push(n as f64 * pdf_integral(&b, wo, mu, phi, 24));
+                }
+            }
+            let up: f64 = expected.iter().sum();
+            expected.push(n as f64 - up);
+            // Merge small bins into one.
+            let (mut chi2, mut dof) = (0.0, 0usize);
+            let (mut small_o, mut small_e) = (0.0, 0.0);
+            for (o, e) in counts.iter().zip(&expected) {
+                if *e < 5.0 {
+                    small_o += o;
+                    small_e += e;
+                } else {
+                    chi2 += (o - e).powi(2) / e;
+                    dof += 1;
+                }
+            }
+            if small_e >= 5.0 {
+                chi2 += (small_o - small_e).powi(2) / small_e;
+                dof += 1;
+            }
+            let crit = chi2_quantile((dof - 1) as f64, 3.1);
+            assert!(
+                chi2 < crit,
+                "σ {} cos θo {}: χ² {chi2:.1} ≥ {crit:.1} ({dof} bins)",
+                b.sigma,
+                wo.z
+            );
+        }
+    }
+}

@@ -84,3 +84,82 @@ impl SceneMeta {
         out
     }
 }
+
+/// `relight.json`: emitters switched off by part name and new emitters added.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Relight {
+    #[serde(default)]
+    pub emitters_off: Vec<String>,
+    #[serde(default)]
+    pub new_emitter: Option<NewEmitter>,
+    #[serde(default)]
+    pub new_emitters: Vec<NewEmitter>,
+}
+
+/// A new emitting mesh: one-sided towards its triangles' winding normal.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct NewEmitter {
+    #[serde(default)]
+    pub name: String,
+    pub vertices: Vec<[f32; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+    pub radiance: [f32; 3],
+    /// Its reflectance (black when absent).
+    #[serde(default)]
+    pub bsdf: Option<RelightBsdf>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RelightBsdf {
+    pub base_color: [f32; 3],
+    pub roughness: f32,
+    pub metallic: f32,
+}
+
+impl Relight {
+    /// Reads and checks `relight.json` against the scene's parts: every switched-off name is an
+    /// emitter part, every new triangle indexes its vertices, radiances are finite and ≥ 0.
+    pub fn load(path: &Path, meta: &SceneMeta) -> Result<Relight> {
+        let text = read_text(path)?;
+        let r: Relight = serde_json::from_str(&text)
+            .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
+        for name in &r.emitters_off {
+            if !meta
+                .parts
+                .iter()
+                .any(|p| &p.name == name && p.emission.is_some())
+            {
+                return Err(FileError::new(
+                    path,
+                    format!("emitters_off: '{name}' is not an emitter part of scene_meta.json"),
+                ));
+            }
+        }
+        for e in r.added() {
+            let n = e.vertices.len() as u32;
+            if let Some(t) = e.triangles.iter().find(|t| t.iter().any(|&i| i >= n)) {
+                return Err(FileError::new(
+                    path,
+                    format!(
+                        "new emitter '{}': triangle {t:?} indexes past its {n} vertices",
+                        e.name
+                    ),
+                ));
+            }
+            if e.radiance.iter().any(|c| !c.is_finite() || *c < 0.0)
+                || e.vertices.iter().flatten().any(|c| !c.is_finite())
+            {
+                return Err(FileError::new(
+                    path,
+                    format!("new emitter '{}': non-finite or negative values", e.name),
+                ));
+            }
+        }
+        Ok(r)
+    }
+
+    /// Every added emitter (`new_emitter` and `new_emitters`).
+    pub fn added(&self) -> impl Iterator<Item = &NewEmitter> {
+        self.new_emitter.iter().chain(&self.new_emitters)
+    }
+}
