@@ -1,11 +1,10 @@
 //! Stage 1 on the Mitsuba reference scene: the factorised render with the ground-truth materials
 //! and the baked shadings must reproduce the rendered images.
 
-use fipt_bake::Accel;
-use fipt_bake::integrators::bake::BakeConfig;
+use fipt_bake::integrators::bake::{BakeConfig, BakeView, bake_views, build_light_field};
+use fipt_bake::{Accel, cast_view};
 use fipt_core::scene::{Dataset, LoadOptions};
 use fipt_train::metrics;
-use fipt_train::pipeline::bake;
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
@@ -26,13 +25,40 @@ fn gt_render_of_baked_shadings_matches_images() {
     )
     .unwrap()
     .bake;
-    let baked = bake::bake(&accel, &ds.mesh, &ds.train, &cfg, false);
-    let scores: Vec<_> = ds
+    // L′ from every train view, as the pipeline builds it; the shadings of every third view
+    // (16 of 48: the bake is the cost of this test).
+    let hits: Vec<_> = ds
         .train
         .views
         .iter()
+        .map(|v| cast_view(&accel, &ds.mesh, &v.camera))
+        .collect();
+    let views: Vec<BakeView> = ds
+        .train
+        .views
+        .iter()
+        .zip(&hits)
+        .map(|(v, h)| BakeView {
+            hits: h,
+            image: &v.image.data,
+            focal: v.camera.fx as f32,
+        })
+        .collect();
+    let lf = build_light_field(&views, cfg.voxel_res);
+    let picked: Vec<usize> = (0..views.len()).step_by(3).collect();
+    let subset: Vec<BakeView> = picked
+        .iter()
+        .map(|&k| BakeView {
+            hits: views[k].hits,
+            image: views[k].image,
+            focal: views[k].focal,
+        })
+        .collect();
+    let baked = bake_views(&accel, &lf, &subset, &cfg, &|_| {});
+    let scores: Vec<_> = picked
+        .iter()
         .zip(&baked.shadings)
-        .map(|(v, s)| metrics::gt_render_psnr(v, s).unwrap())
+        .map(|(&k, s)| metrics::gt_render_psnr(&ds.train.views[k], s).unwrap())
         .collect();
     let mean = |f: &dyn Fn(&metrics::GtRenderPsnr) -> Option<f64>| {
         let v: Vec<f64> = scores.iter().filter_map(f).collect();
@@ -47,8 +73,10 @@ fn gt_render_of_baked_shadings_matches_images() {
     eprintln!(
         "GT render PSNR: all {all:.2} dB, diffuse {diff:.2}, specular {spec:.2}, worst view {worst:.2}"
     );
-    // Measured 31.84 / 32.21 dB. L′ with one mean per voxel (the reference) gives 30.82 /
-    // 31.19, with side records but sampling holes left at 0 31.20 / 31.56: both fail here.
-    assert!(all >= 31.5, "all-pixel PSNR {all:.2}");
-    assert!(diff >= 31.9, "diffuse PSNR {diff:.2}");
+    // Measured on these 16 views 32.06 / 32.38 dB (all 48: 31.84 / 32.21). On all 48 views, L′
+    // with one mean per voxel (the reference) gave 30.82 / 31.19, with side records but sampling
+    // holes left at 0 31.20 / 31.56; the bounds keep the margins they had over those (0.34 /
+    // 0.31 dB below the measured figure), so both would fail here.
+    assert!(all >= 31.7, "all-pixel PSNR {all:.2}");
+    assert!(diff >= 32.05, "diffuse PSNR {diff:.2}");
 }

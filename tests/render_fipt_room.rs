@@ -21,6 +21,7 @@ fn job(out: &str, relight: bool) -> RenderJob {
         out: std::env::temp_dir().join(format!("fipt-render-{}-{out}", std::process::id())),
         split: "val".into(),
         views: vec![0, 5],
+        cameras: None,
         relight: relight.then(|| scene_dir().join("relight.json")),
         selection: LightSelection::Power,
         path: PathConfig {
@@ -83,5 +84,98 @@ fn truth_renders_agree_with_mitsuba() {
         );
         assert!(j.out.join("render.json").is_file());
         let _ = std::fs::remove_dir_all(&j.out);
+    }
+}
+
+/// A copy of fipt-room (links to its folders and mesh, a copy of `scene_meta.json` and
+/// `relight.json`) that a test may break.
+fn scene_copy(name: &str) -> PathBuf {
+    let src = scene_dir();
+    let d = std::env::temp_dir().join(format!("fipt-render-bad-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(d.join("textures")).unwrap();
+    for f in ["train", "val", "scene.obj"] {
+        std::os::unix::fs::symlink(src.join(f), d.join(f)).unwrap();
+    }
+    for f in ["scene_meta.json", "relight.json"] {
+        std::fs::copy(src.join(f), d.join(f)).unwrap();
+    }
+    for e in std::fs::read_dir(src.join("textures")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), d.join("textures").join(e.file_name())).unwrap();
+    }
+    d
+}
+
+/// Runs `render --truth` (1 spp, view 0); expects exit 1, a stderr naming `needle`, and no
+/// image in the output folder.
+fn assert_render_fails(scene: &std::path::Path, relight: bool, needles: &[&str]) {
+    let out = scene.join("out");
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_fipt-train"));
+    cmd.args([
+        "render", "--truth", "--spp", "1", "--views", "0", "--json", "--scene",
+    ])
+    .arg(scene)
+    .arg("--out")
+    .arg(&out);
+    if relight {
+        cmd.arg("--relight").arg(scene.join("relight.json"));
+    }
+    let o = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks '{n}': {err}");
+    }
+    assert!(!out.join("val").exists(), "a failed render wrote images");
+}
+
+#[test]
+fn bad_render_input_is_named() {
+    // Malformed relight.json, and one that switches off a part that is not an emitter.
+    let d = scene_copy("relight");
+    std::fs::write(d.join("relight.json"), "{\"emitters_off\": [").unwrap();
+    assert_render_fails(&d, true, &["relight.json", "bad JSON"]);
+    std::fs::write(d.join("relight.json"), r#"{"emitters_off": ["floor"]}"#).unwrap();
+    assert_render_fails(&d, true, &["relight.json", "floor"]);
+    // A missing texture.
+    let d = scene_copy("texture");
+    std::fs::remove_file(d.join("textures/floor_planks.exr")).unwrap();
+    assert_render_fails(&d, false, &["floor_planks.exr"]);
+    // Part ranges that leave triangles uncovered.
+    let d = scene_copy("ranges");
+    let p = d.join("scene_meta.json");
+    let mut meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    meta["parts"][0]["triangles"][1] = serde_json::json!(2);
+    std::fs::write(&p, meta.to_string()).unwrap();
+    assert_render_fails(&d, false, &["scene_meta.json", "belongs to no part"]);
+    for n in ["relight", "texture", "ranges"] {
+        let _ = std::fs::remove_dir_all(
+            std::env::temp_dir().join(format!("fipt-render-bad-{n}-{}", std::process::id())),
+        );
+    }
+}
+
+/// `--cameras val/transforms.json` renders the very cameras of the val split: the same image
+/// bit for bit (same seed and view index), written under `cameras/`, unscored.
+#[test]
+fn cameras_file_gives_the_split_cameras() {
+    let mut a = job("split", false);
+    a.views = vec![5];
+    a.path.spp = 4;
+    let mut b = a.clone();
+    b.out = a.out.with_extension("cams");
+    b.cameras = Some(scene_dir().join("val/transforms.json"));
+    let (ra, rb) = (render(&a).unwrap(), render(&b).unwrap());
+    assert!(ra.views[0].psnr_db.is_some() && rb.views[0].psnr_db.is_none());
+    let read = |p: PathBuf| fipt_core::scene::Image::read_exr(&p).unwrap().data;
+    assert_eq!(
+        read(a.out.join("val/Image/005_0001.exr")),
+        read(b.out.join("cameras/Image/005_0001.exr"))
+    );
+    for d in [a.out, b.out] {
+        let _ = std::fs::remove_dir_all(d);
     }
 }

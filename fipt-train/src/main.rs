@@ -103,6 +103,9 @@ enum Cmd {
         /// Only these views (comma-separated; default all).
         #[arg(long, value_delimiter = ',')]
         views: Vec<usize>,
+        /// New cameras from a transforms.json (FIPT or nerfstudio) instead of the split's.
+        #[arg(long)]
+        cameras: Option<PathBuf>,
         #[arg(long, default_value_t = 512)]
         spp: usize,
         /// Maximum path length in segments (Mitsuba's max_depth).
@@ -117,6 +120,9 @@ enum Cmd {
         /// Russian roulette from this depth on (default off).
         #[arg(long)]
         rr_depth: Option<usize>,
+        /// BRDF lobe choice: luminance (by lobe reflectance) or half (the reference's 50/50).
+        #[arg(long, default_value = "luminance")]
+        lobe: fipt_core::brdf::LobeChoice,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// No progress bar; print render.json to stdout.
@@ -146,6 +152,19 @@ enum BenchCmd {
         rays: usize,
         /// Timed repetitions per configuration (the median is reported).
         #[arg(long, default_value_t = 5)]
+        reps: usize,
+    },
+    /// Paths and rays per second of the path tracer on a scene's true materials, 1 and 2 threads.
+    Render {
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        json: bool,
+        #[arg(long, default_value_t = 16)]
+        spp: usize,
+        #[arg(long, default_value_t = 2)]
+        views: usize,
+        #[arg(long, default_value_t = 3)]
         reps: usize,
     },
     /// Secondary rays per second of the bake on a built-in scene.
@@ -208,11 +227,13 @@ fn main() {
             truth: _,
             split,
             views,
+            cameras,
             spp,
             max_depth,
             relight,
             light_selection,
             rr_depth,
+            lobe,
             seed,
             json,
         } => {
@@ -221,12 +242,14 @@ fn main() {
                 out,
                 split,
                 views,
+                cameras,
                 relight,
                 selection: light_selection,
                 path: fipt_bake::integrators::path::PathConfig {
                     spp,
                     max_depth,
                     rr_depth,
+                    lobe,
                     seed,
                     ..Default::default()
                 },
@@ -252,6 +275,13 @@ fn main() {
                 reps,
             } => bench::trace(scene.as_deref(), json, rays, reps),
             BenchCmd::Bake { json, reps } => bench::bake(json, reps),
+            BenchCmd::Render {
+                scene,
+                json,
+                spp,
+                views,
+                reps,
+            } => bench::render(&scene, json, spp, views, reps),
             BenchCmd::Step {
                 backend,
                 json,

@@ -16,8 +16,9 @@ use fipt_bake::Accel;
 use fipt_bake::emitters::{EmitterSet, LightSelection};
 use fipt_bake::integrators::path::{PathConfig, PathScene, PathStats};
 use fipt_bake::materials::{SurfaceMaterial, TrueMaterials};
+use fipt_core::scene::dataset::load_cameras;
 use fipt_core::scene::meta::{Relight, SceneMeta};
-use fipt_core::scene::{Dataset, Image, LoadOptions, MapKind, Mesh};
+use fipt_core::scene::{Camera, Dataset, Image, LoadOptions, MapKind, Mesh};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -32,6 +33,9 @@ pub struct RenderJob {
     pub split: String,
     /// Render only these views (all when empty).
     pub views: Vec<usize>,
+    /// Cameras from this `transforms.json` (FIPT or nerfstudio) instead of the split's; written
+    /// to `OUT/cameras/`, unscored.
+    pub cameras: Option<PathBuf>,
     pub relight: Option<PathBuf>,
     pub selection: LightSelection,
     pub path: PathConfig,
@@ -154,33 +158,54 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         materials: &materials,
         emitters: &lights,
     };
-    let views: Vec<usize> = if job.views.is_empty() {
-        (0..split.views.len()).collect()
-    } else {
-        job.views.clone()
+    // (view index, camera, reference image) of every view to render.
+    let cams: Vec<(usize, Camera, Option<&Image>)> = match &job.cameras {
+        Some(file) => load_cameras(file, (ds.train.width, ds.train.height))?
+            .into_iter()
+            .enumerate()
+            .map(|(k, c)| (k, c, None))
+            .collect(),
+        None => split
+            .views
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                let r = if job.relight.is_some() {
+                    v.map(MapKind::Relight)
+                } else {
+                    Some(&v.image)
+                };
+                (k, v.camera.clone(), r)
+            })
+            .collect(),
     };
-    if let Some(&k) = views.iter().find(|&&k| k >= split.views.len()) {
-        bail!(
-            "view {k}: the {} split has {} views",
-            job.split,
-            split.views.len()
-        );
+    if let Some(&k) = job.views.iter().find(|&&k| k >= cams.len()) {
+        bail!("view {k}: there are {} cameras", cams.len());
     }
+    let picked: Vec<&(usize, Camera, Option<&Image>)> = if job.views.is_empty() {
+        cams.iter().collect()
+    } else {
+        job.views.iter().map(|&k| &cams[k]).collect()
+    };
     let folder = if job.relight.is_some() {
         "Relight"
     } else {
         "Image"
     };
-    let dir = job.out.join(&job.split).join(folder);
-    let pb = progress_bar((views.len() * job.path.spp) as u64, "render", !job.quiet);
+    let group = if job.cameras.is_some() {
+        "cameras"
+    } else {
+        job.split.as_str()
+    };
+    let dir = job.out.join(group).join(folder);
+    let pb = progress_bar((picked.len() * job.path.spp) as u64, "render", !job.quiet);
     let mut rows = Vec::new();
     let mut stats = PathStats::default();
     let t_render = Instant::now();
-    for &k in &views {
-        let v = &split.views[k];
+    for &&(k, ref camera, refimg) in &picked {
         let t = Instant::now();
         let base = pb.position();
-        let (rgb, st) = scene.render_view(&v.camera, &job.path, k as u64, &|n| {
+        let (rgb, st) = scene.render_view(camera, &job.path, k as u64, &|n| {
             pb.set_position(base + n as u64)
         });
         let seconds = t.elapsed().as_secs_f64();
@@ -188,7 +213,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         stats.rays += st.rays;
         stats.shadow_rays += st.shadow_rays;
         stats.nonfinite += st.nonfinite;
-        let (w, h) = (v.camera.width, v.camera.height);
+        let (w, h) = (camera.width, camera.height);
         let img = Image::from_data(w, h, 3, rgb);
         img.write_exr(&dir.join(format!("{k:03}_0001.exr")))?;
         write_png(
@@ -198,11 +223,6 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
             &img.data,
             1.0,
         )?;
-        let refimg = if job.relight.is_some() {
-            v.map(MapKind::Relight)
-        } else {
-            Some(&v.image)
-        };
         let (psnr_db, mean_ratio) = match refimg {
             Some(r) if r.data.len() == img.data.len() => {
                 let mean = |d: &[f32]| d.iter().map(|&x| x as f64).sum::<f64>();
@@ -225,7 +245,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     let scores: Vec<f64> = rows.iter().filter_map(|r| r.psnr_db).collect();
     let report = RenderReport {
         scene: job.scene.display().to_string(),
-        split: job.split.clone(),
+        split: group.to_string(),
         relight: job.relight.is_some(),
         spp: job.path.spp,
         max_depth: job.path.max_depth,

@@ -1,8 +1,8 @@
 //! A wavefront path tracer (the rendering equation, paper Eq. 3–4) over the scene mesh with the
 //! FIPT BRDF (Eq. 1) at every hit: each bounce takes the batch of live rays → closest hits →
 //! one batched material query (`MaterialSource`) → next-event estimation to the area lights
-//! with MIS (power heuristic) → BRDF sampling (reference §2.1's diffuse/GGX mixture) → the
-//! next batch.
+//! with MIS (power heuristic) → BRDF sampling (a diffuse/GGX mixture: the reference's 50/50 or
+//! by lobe reflectance, `PathConfig::lobe`) → the next batch.
 //!
 //! Conventions as Mitsuba's `path` integrator, which rendered the reference scenes: `max_depth`
 //! counts path segments (1: emitters seen directly; 2: direct lighting; 7: the reference);
@@ -17,7 +17,7 @@ use crate::accel::Accel;
 use crate::emitters::EmitterSet;
 use crate::integrators::bake::RAY_EPS;
 use crate::materials::{MaterialSource, SurfaceMaterial};
-use fipt_core::brdf::{Brdf, Frame};
+use fipt_core::brdf::{Brdf, Frame, LobeChoice};
 use fipt_core::rng::Rng;
 use fipt_core::scene::Camera;
 use glam::Vec3;
@@ -37,6 +37,9 @@ pub struct PathConfig {
     /// Whether emitters also reflect light with their material (Mitsuba's area emitters do;
     /// FIPT's refinement assumes they do not: paths end on emitters).
     pub emitters_reflect: bool,
+    /// How BRDF sampling picks a lobe: `half` (the reference's 50/50 mixture) or `luminance`
+    /// (by the lobes' reflectance, as the Mitsuba plugin that rendered the reference scenes).
+    pub lobe: LobeChoice,
     /// Paths traced per wavefront (memory bound, not a result-changing setting).
     pub wave: usize,
     pub seed: u64,
@@ -49,6 +52,7 @@ impl Default for PathConfig {
             max_depth: 7,
             rr_depth: None,
             emitters_reflect: true,
+            lobe: LobeChoice::Luminance,
             wave: 1 << 18,
             seed: 0,
         }
@@ -285,6 +289,7 @@ impl PathScene<'_> {
         let frame = Frame::new(n);
         let wo_l = frame.to_local(wo);
         let brdf = Brdf::from_material(mat.base_color, mat.roughness, mat.metallic);
+        let p_spec = brdf.spec_probability(cfg.lobe);
         let mut shadow = 0;
         // Next-event estimation: one point on one light.
         let (u0, u1, u2) = (ps.rng.next_f32(), ps.rng.next_f32(), ps.rng.next_f32());
@@ -307,14 +312,14 @@ impl PathScene<'_> {
                     let wi_l = frame.to_local(wi);
                     let f = brdf.f(wo_l, wi_l);
                     let pdf_light = s.pdf_area * d2 / cos_l;
-                    let w = power_heuristic(pdf_light, brdf.pdf(wo_l, wi_l));
+                    let w = power_heuristic(pdf_light, brdf.pdf_mix(wo_l, wi_l, p_spec));
                     ps.radiance += ps.throughput * f * cos_x * le * (w / pdf_light);
                 }
             }
         }
         // Continue with a BRDF sample.
         let (u0, u1, u2) = (ps.rng.next_f32(), ps.rng.next_f32(), ps.rng.next_f32());
-        let (wi_l, weight, pdf) = brdf.sample_f(wo_l, u0, u1, u2);
+        let (wi_l, weight, pdf) = brdf.sample_f_mix(wo_l, u0, u1, u2, p_spec);
         if weight == Vec3::ZERO || pdf <= 0.0 || !pdf.is_finite() {
             ps.alive = false;
             return shadow;

@@ -31,6 +31,28 @@ pub fn sample_ggx_h(u1: f32, u2: f32, sigma: f32) -> Vec3 {
     Vec3::new(s * ph.cos(), s * ph.sin(), c)
 }
 
+/// How the path tracer picks between the diffuse and the GGX lobe when sampling the BRDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LobeChoice {
+    /// 50/50, the reference's `path_tracing` (§2.1).
+    Half,
+    /// GGX with probability lum(k_s)/(lum(k_s) + lum(k_d)), clamped to [0.05, 1]: the sampler
+    /// of the Mitsuba plugin that rendered the reference scenes.
+    Luminance,
+}
+
+impl std::str::FromStr for LobeChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "half" => Ok(Self::Half),
+            "luminance" => Ok(Self::Luminance),
+            _ => Err(format!("unknown lobe choice '{s}' (half, luminance)")),
+        }
+    }
+}
+
 /// A BRDF instance at a surface point.
 #[derive(Clone, Copy, Debug)]
 pub struct Brdf {
@@ -67,21 +89,55 @@ impl Brdf {
         ggx_d(h.z, self.sigma) * h.z.max(0.0) / (4.0 * wo.dot(h).max(1e-4))
     }
 
-    /// Mixture pdf: 0.5·pdf_spec + 0.5·pdf_cosine.
+    /// The reference's mixture pdf: 0.5·pdf_spec + 0.5·pdf_cosine.
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        0.5 * self.pdf_spec(wo, wi) + 0.5 * cosine_pdf(wi.z)
+        self.pdf_mix(wo, wi, 0.5)
     }
 
-    /// Samples ω_i from the mixture (diffuse if u0 > 0.5, else GGX). Returns (ω_i, f·cos/pdf,
-    /// pdf); the weight is zero where the pdf is zero or the direction is below the horizon.
+    /// Mixture pdf with the GGX lobe chosen with probability `p_spec`.
+    pub fn pdf_mix(&self, wo: Vec3, wi: Vec3, p_spec: f32) -> f32 {
+        p_spec * self.pdf_spec(wo, wi) + (1.0 - p_spec) * cosine_pdf(wi.z)
+    }
+
+    /// The probability of the GGX lobe under `lobe`.
+    pub fn spec_probability(&self, lobe: LobeChoice) -> f32 {
+        match lobe {
+            LobeChoice::Half => 0.5,
+            LobeChoice::Luminance => {
+                let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722));
+                let (s, d) = (lum(self.ks), lum(self.kd));
+                if s + d > 0.0 {
+                    (s / (s + d)).clamp(0.05, 1.0)
+                } else {
+                    1.0
+                }
+            }
+        }
+    }
+
+    /// Samples ω_i from the reference's mixture (diffuse if u0 > 0.5, else GGX). Returns
+    /// (ω_i, f·cos/pdf, pdf); the weight is zero where the pdf is zero or the direction is below
+    /// the horizon.
     pub fn sample_f(&self, wo: Vec3, u0: f32, u1: f32, u2: f32) -> (Vec3, Vec3, f32) {
-        let wi = if u0 > 0.5 {
+        self.sample_f_mix(wo, u0, u1, u2, 0.5)
+    }
+
+    /// The same with the GGX lobe chosen when u0 ≤ `p_spec`.
+    pub fn sample_f_mix(
+        &self,
+        wo: Vec3,
+        u0: f32,
+        u1: f32,
+        u2: f32,
+        p_spec: f32,
+    ) -> (Vec3, Vec3, f32) {
+        let wi = if u0 > p_spec {
             sample_cosine(u1, u2)
         } else {
             let h = sample_ggx_h(u1, u2, self.sigma);
             (2.0 * wo.dot(h) * h - wo).normalize()
         };
-        let pdf = self.pdf(wo, wi);
+        let pdf = self.pdf_mix(wo, wi, p_spec);
         if pdf.is_nan() || pdf <= 0.0 || wi.z <= 0.0 {
             return (wi, Vec3::ZERO, pdf);
         }
@@ -137,7 +193,14 @@ mod tests {
 
     /// ∫ over the upper hemisphere of the mixture pdf, by midpoint quadrature in (cos θ, φ)
     /// over `[mu0, mu1] × [phi0, phi1]`.
-    fn pdf_integral(b: &Brdf, wo: Vec3, mu: (f64, f64), phi: (f64, f64), n: usize) -> f64 {
+    fn pdf_integral(
+        b: &Brdf,
+        wo: Vec3,
+        mu: (f64, f64),
+        phi: (f64, f64),
+        n: usize,
+        p_spec: f32,
+    ) -> f64 {
         let mut s = 0.0f64;
         for i in 0..n {
             let m = mu.0 + (mu.1 - mu.0) * (i as f64 + 0.5) / n as f64;
@@ -145,17 +208,18 @@ mod tests {
             for j in 0..n {
                 let p = phi.0 + (phi.1 - phi.0) * (j as f64 + 0.5) / n as f64;
                 let wi = Vec3::new((st * p.cos()) as f32, (st * p.sin()) as f32, m as f32);
-                s += b.pdf(wo, wi) as f64;
+                s += b.pdf_mix(wo, wi, p_spec) as f64;
             }
         }
         s * (mu.1 - mu.0) * (phi.1 - phi.0) / (n * n) as f64
     }
 
     /// Share of `sample_f` draws that land below the horizon (weight 0, no direction).
-    fn below_horizon(b: &Brdf, wo: Vec3, n: usize, rng: &mut Rng) -> f64 {
+    fn below_horizon(b: &Brdf, wo: Vec3, n: usize, rng: &mut Rng, p: f32) -> f64 {
         let below = (0..n)
             .filter(|_| {
-                let (wi, _, _) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                let (wi, _, _) =
+                    b.sample_f_mix(wo, rng.next_f32(), rng.next_f32(), rng.next_f32(), p);
                 wi.z <= 0.0
             })
             .count();
@@ -168,8 +232,8 @@ mod tests {
     fn pdf_integrates_to_one() {
         let mut rng = Rng::new(3, 1);
         for (b, wo) in cases() {
-            let up = pdf_integral(&b, wo, (0.0, 1.0), (0.0, std::f64::consts::TAU), 1200);
-            let below = below_horizon(&b, wo, 400_000, &mut rng);
+            let up = pdf_integral(&b, wo, (0.0, 1.0), (0.0, std::f64::consts::TAU), 1200, 0.5);
+            let below = below_horizon(&b, wo, 400_000, &mut rng, 0.5);
             assert!(
                 (up + below - 1.0).abs() < 6e-3,
                 "σ {}: ∫pdf {up:.5} + below {below:.5}",
@@ -183,18 +247,22 @@ mod tests {
     fn sample_weight_is_f_cos_over_pdf() {
         let mut rng = Rng::new(5, 1);
         for (b, wo) in cases() {
-            for _ in 0..2000 {
-                let (wi, w, pdf) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
-                if wi.z <= 0.0 {
-                    assert_eq!(w, Vec3::ZERO);
-                    continue;
+            for lobe in [LobeChoice::Half, LobeChoice::Luminance] {
+                let p = b.spec_probability(lobe);
+                for _ in 0..2000 {
+                    let (u0, u1, u2) = (rng.next_f32(), rng.next_f32(), rng.next_f32());
+                    let (wi, w, pdf) = b.sample_f_mix(wo, u0, u1, u2, p);
+                    if wi.z <= 0.0 {
+                        assert_eq!(w, Vec3::ZERO);
+                        continue;
+                    }
+                    assert!((pdf - b.pdf_mix(wo, wi, p)).abs() <= 1e-5 * pdf.max(1.0));
+                    let want = b.f(wo, wi) * wi.z / pdf;
+                    assert!(
+                        (w - want).length() <= 1e-4 * want.length().max(1e-3),
+                        "{w} vs {want}"
+                    );
                 }
-                assert!((pdf - b.pdf(wo, wi)).abs() <= 1e-5 * pdf.max(1.0));
-                let want = b.f(wo, wi) * wi.z / pdf;
-                assert!(
-                    (w - want).length() <= 1e-4 * want.length().max(1e-3),
-                    "{w} vs {want}"
-                );
             }
         }
     }
@@ -214,10 +282,15 @@ mod tests {
         use std::f64::consts::TAU;
         let (nt, np, n) = (12usize, 16usize, 300_000usize);
         let mut rng = Rng::new(9, 1);
-        for (b, wo) in cases() {
+        for ((b, wo), lobe) in cases()
+            .into_iter()
+            .flat_map(|c| [(c, LobeChoice::Half), (c, LobeChoice::Luminance)])
+        {
+            let p = b.spec_probability(lobe);
             let mut counts = vec![0f64; nt * np + 1];
             for _ in 0..n {
-                let (wi, _, _) = b.sample_f(wo, rng.next_f32(), rng.next_f32(), rng.next_f32());
+                let (wi, _, _) =
+                    b.sample_f_mix(wo, rng.next_f32(), rng.next_f32(), rng.next_f32(), p);
                 if wi.z <= 0.0 {
                     counts[nt * np] += 1.0;
                     continue;
@@ -235,7 +308,7 @@ mod tests {
                         TAU * ip as f64 / np as f64,
                         TAU * (ip + 1) as f64 / np as f64,
                     );
-                    expected.push(n as f64 * pdf_integral(&b, wo, mu, phi, 24));
+                    expected.push(n as f64 * pdf_integral(&b, wo, mu, phi, 24, p));
                 }
             }
             let up: f64 = expected.iter().sum();

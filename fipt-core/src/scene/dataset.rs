@@ -647,3 +647,51 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
         views,
     })
 }
+
+/// Cameras alone from a `transforms.json`, for rendering new views: the nerfstudio convention
+/// where the file has intrinsics (`fl_x`, `fl_y`, `cx`, `cy`, `w`, `h`, per frame or at the top),
+/// else the FIPT synthetic one (`camera_angle_x`, c2w columns left/up/forward) at `size` (the
+/// scene's image size) unless the file gives `w` and `h`.
+pub fn load_cameras(path: &Path, size: (usize, usize)) -> Result<Vec<Camera>> {
+    let json = parse_json(path)?;
+    let frames = frames_of(&json, path)?;
+    let get = |f: &Value, key: &str| f.get(key).or_else(|| json.get(key)).and_then(Value::as_f64);
+    let nerfstudio = frames.first().is_some_and(|f| get(f, "fl_x").is_some());
+    let fov = if nerfstudio {
+        0.0
+    } else {
+        let fov = json_f64(&json, "camera_angle_x", path)?;
+        if !(fov > 0.0 && fov < std::f64::consts::PI) {
+            return Err(FileError::new(
+                path,
+                format!("camera_angle_x = {fov} is not a field of view in (0, pi) radians"),
+            ));
+        }
+        fov
+    };
+    frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let m = json_matrix4(f, path, k)?;
+            let w = get(f, "w").map_or(size.0, |v| v as usize);
+            let h = get(f, "h").map_or(size.1, |v| v as usize);
+            if w == 0 || h == 0 || w > 1 << 15 || h > 1 << 15 {
+                return Err(FileError::new(
+                    path,
+                    format!("frame {k}: image size {w}x{h}"),
+                ));
+            }
+            if !nerfstudio {
+                return Ok(Camera::from_fipt_c2w(m, fov, w, h));
+            }
+            let need = |key: &str| {
+                get(f, key).ok_or_else(|| {
+                    FileError::new(path, format!("frame {k}: missing or non-numeric '{key}'"))
+                })
+            };
+            let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
+            Ok(Camera::from_opengl_c2w(m, fx, fy, cx, cy, w, h))
+        })
+        .collect()
+}
