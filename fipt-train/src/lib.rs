@@ -8,6 +8,7 @@ pub mod bench;
 pub mod cache;
 pub mod check;
 pub mod config;
+pub mod learned;
 pub mod metrics;
 pub mod output;
 pub mod pipeline;
