@@ -117,7 +117,6 @@ fn assemble(
 /// Renders the job's views; writes `OUT/<split>/Image/{k:03}_0001.exr` (or `Relight/`), PNG
 /// previews and `OUT/render.json`.
 pub fn render(job: &RenderJob) -> Result<RenderReport> {
-    let t0 = Instant::now();
     // The photos (`Image/`) are always loaded; `Relight/` where relighting.
     let opts = LoadOptions {
         maps: if job.relight.is_some() {
@@ -209,10 +208,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
             pb.set_position(base + n as u64)
         });
         let seconds = t.elapsed().as_secs_f64();
-        stats.paths += st.paths;
-        stats.rays += st.rays;
-        stats.shadow_rays += st.shadow_rays;
-        stats.nonfinite += st.nonfinite;
+        stats.add(&st);
         let (w, h) = (camera.width, camera.height);
         let img = Image::from_data(w, h, 3, rgb);
         img.write_exr(&dir.join(format!("{k:03}_0001.exr")))?;
@@ -262,7 +258,6 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         threads: rayon::current_num_threads(),
     };
     write_json(&job.out.join("render.json"), &report)?;
-    let _ = t0;
     Ok(report)
 }
 

@@ -72,7 +72,8 @@ pub struct PathStats {
 }
 
 impl PathStats {
-    fn add(&mut self, o: &PathStats) {
+    /// Adds another render's counters.
+    pub fn add(&mut self, o: &PathStats) {
         self.paths += o.paths;
         self.rays += o.rays;
         self.shadow_rays += o.shadow_rays;
