@@ -192,8 +192,7 @@ fn shipped_fit_recovers_known_brdf_and_emitter() {
             max: EXTENT,
         },
         mode: SegMode::Part,
-        epochs: t.epochs,
-        batch: t.batch,
+        schedule: t.schedule(),
         seed: cfg.seed,
     };
     let (tr, _) = fit(&store, plan, &Device::flex(), false);
@@ -213,29 +212,30 @@ fn shipped_fit_recovers_known_brdf_and_emitter() {
         s.iou_extract,
         s.iou_half
     );
-    // Measured: k_d 15.19 dB (constant 10.84), σ 13.97 (10.87), |m err| 0.091 / 0.132, IoU
-    // 0.936 / 0.977 after the 220 steps the fast config ships. (A 1100-step schedule with the
-    // learning rate decayed from 1e-2 reached 42.8 / 33.3 dB: the shipped schedule is short.)
-    assert!(s.kd_psnr >= c.0 + 3.0, "k_d PSNR {:.2}", s.kd_psnr);
-    assert!(s.sigma_psnr >= c.1 + 2.0, "σ PSNR {:.2}", s.sigma_psnr);
+    // Measured: k_d 40.32 dB (constant 10.84), σ 33.34 (10.87), |m err| 0.003 / 0.001, IoU
+    // 0.995 / 1.000 after the 600 steps the fast config ships (`train.min_steps`, the learning
+    // rate decayed from 1e-2 to 1e-3, a quarter of each batch segment-balanced). The reference's
+    // schedule at this size (220 steps at 1e-3) reached 15.19 / 13.97 dB and 0.091 / 0.132.
+    assert!(s.kd_psnr >= c.0 + 20.0, "k_d PSNR {:.2}", s.kd_psnr);
+    assert!(s.sigma_psnr >= c.1 + 15.0, "σ PSNR {:.2}", s.sigma_psnr);
     // A constant m = 0.5 errs by 0.5 everywhere; m = 0 errs by 1 on the metal.
     assert!(
-        s.m_err_metal <= 0.2,
+        s.m_err_metal <= 0.05,
         "metal part m error {:.3}",
         s.m_err_metal
     );
     assert!(
-        s.m_err_dielectric <= 0.2,
+        s.m_err_dielectric <= 0.05,
         "dielectric m error {:.3}",
         s.m_err_dielectric
     );
     assert!(
-        s.iou_extract >= 0.85,
+        s.iou_extract >= 0.95,
         "emitter IoU at α > 0.01: {:.3}",
         s.iou_extract
     );
     assert!(
-        s.iou_half >= 0.9,
+        s.iou_half >= 0.95,
         "emitter IoU at α > 0.5: {:.3}",
         s.iou_half
     );

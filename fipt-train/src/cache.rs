@@ -83,6 +83,17 @@ pub fn load(
     width: usize,
     height: usize,
 ) -> Result<Option<Vec<Vec<f32>>>> {
+    load_keyed(path, Some(key), views, width, height)
+}
+
+/// Like `load`, with `None` accepting any key (diagnostics reading another run's shadings).
+pub fn load_keyed(
+    path: &Path,
+    key: Option<u64>,
+    views: usize,
+    width: usize,
+    height: usize,
+) -> Result<Option<Vec<Vec<f32>>>> {
     if !path.exists() {
         return Ok(None);
     }
@@ -96,7 +107,7 @@ pub fn load(
         );
     }
     let num = |i: usize| u64::from_le_bytes(head[8 + 8 * i..16 + 8 * i].try_into().unwrap());
-    if num(0) != key {
+    if key.is_some_and(|k| num(0) != k) {
         return Ok(None);
     }
     if (num(1), num(2), num(3), num(4))

@@ -1,12 +1,15 @@
 //! Run configuration as data (`configs/*.json`): every key is known, typed and range-checked,
 //! and any error names the key (`train.lr: invalid type ...`).
 //!
-//! Owns: the config schema, its defaults (the reference's constants, except
-//! `emitters.min_unexplained`) and validation. Must not
-//! touch: what the stages do with it.
+//! Owns: the config schema, its defaults (the reference's constants, except the named
+//! departures: `emitters.min_unexplained`, the fit's schedule keys `train.min_steps`,
+//! `train.lr`/`lr_end`, `train.balance`, and the refinement's `light_samples` and sample
+//! counts; the README gives the measurement behind each) and validation. Must not touch: what
+//! the stages do with it.
 
 use anyhow::{Context, Result, bail};
 use fipt_bake::integrators::bake::BakeConfig;
+use fipt_bake::integrators::refine::RefineConfig;
 use fipt_core::model::hashgrid::MaxResolution;
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{
@@ -24,7 +27,45 @@ pub struct Config {
     pub bake: BakeConfig,
     pub train: TrainSection,
     pub emitters: EmitterSection,
+    pub refine: RefineSection,
     pub maps: MapsSection,
+}
+
+/// Shading refinement and the alternation (paper §4.3; reference §2.5–2.6).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RefineSection {
+    /// Refine-then-fit rounds after round 0 (reference: 2).
+    pub rounds: usize,
+    /// Each round's fit continues the previous model instead of starting afresh (the
+    /// reference re-initialises).
+    pub warm_start: bool,
+    /// λ_d (Eq. 17) of the fits on refined shadings (None: `train.lambda_d`, the reference).
+    pub lambda_d: Option<f32>,
+    /// The path-traced estimators.
+    pub paths: RefineConfig,
+}
+
+impl Default for RefineSection {
+    /// The reference's two rounds with fresh fits; the estimators with light samples at the
+    /// first hit and half the reference's BRDF samples (see `RefineConfig::light_samples`),
+    /// emitters emitting from the sides the photos saw (`RefineConfig::observed_sides`).
+    fn default() -> Self {
+        Self {
+            rounds: 2,
+            warm_start: false,
+            lambda_d: None,
+            paths: RefineConfig {
+                samples: fipt_bake::integrators::bake::BakeSamples {
+                    diffuse: 64,
+                    specular: [32; 6],
+                },
+                light_samples: 32,
+                observed_sides: true,
+                ..RefineConfig::default()
+            },
+        }
+    }
 }
 
 impl Default for Config {
@@ -35,6 +76,7 @@ impl Default for Config {
             bake: BakeConfig::default(),
             train: TrainSection::default(),
             emitters: EmitterSection::default(),
+            refine: RefineSection::default(),
             maps: MapsSection::default(),
         }
     }
@@ -55,7 +97,18 @@ pub enum SegChoice {
 pub struct TrainSection {
     pub epochs: usize,
     pub batch: usize,
+    /// Floor on the steps of a fit (0: the reference's `epochs` epochs only); see
+    /// `pipeline::fit::Schedule`.
+    pub min_steps: usize,
     pub lr: f64,
+    /// Learning rate at the last step as a fraction of `lr`, decayed exponentially (1: constant,
+    /// the reference).
+    pub lr_end: f64,
+    /// Share of each batch drawn uniformly over segments (0: the reference's uniform pixels).
+    pub balance: f32,
+    /// λ_d at the last step as a fraction of `lambda_d`, reached linearly (1: constant, the
+    /// reference).
+    pub lambda_d_end: f32,
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
@@ -76,7 +129,11 @@ impl Default for TrainSection {
         Self {
             epochs: 2,
             batch: 8192,
-            lr: 1e-3,
+            min_steps: 1000,
+            lr: 1e-2,
+            lr_end: 0.1,
+            balance: 0.25,
+            lambda_d_end: 1.0,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
@@ -94,6 +151,19 @@ impl Default for TrainSection {
 }
 
 impl TrainSection {
+    /// The fit's schedule.
+    pub fn schedule(&self) -> crate::pipeline::fit::Schedule {
+        crate::pipeline::fit::Schedule {
+            epochs: self.epochs,
+            batch: self.batch,
+            min_steps: self.min_steps,
+            lr: self.lr,
+            lr_end: self.lr_end,
+            balance: self.balance,
+            lambda_d_end: self.lambda_d_end,
+        }
+    }
+
     /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`).
     pub fn model_config(&self, levels: usize) -> TrainConfig {
         TrainConfig::new()
@@ -230,6 +300,21 @@ impl Config {
         check(t.epochs >= 1, "train.epochs", "must be >= 1")?;
         check(t.batch >= 1, "train.batch", "must be >= 1")?;
         check(t.lr > 0.0 && t.lr.is_finite(), "train.lr", "must be > 0")?;
+        check(
+            t.lr_end > 0.0 && t.lr_end <= 1.0,
+            "train.lr_end",
+            "must be in (0, 1]",
+        )?;
+        check(
+            (0.0..=1.0).contains(&t.lambda_d_end),
+            "train.lambda_d_end",
+            "must be in [0, 1]",
+        )?;
+        check(
+            (0.0..=1.0).contains(&t.balance),
+            "train.balance",
+            "must be in [0, 1]",
+        )?;
         for (k, v) in [
             ("train.lambda_e", t.lambda_e),
             ("train.lambda_d", t.lambda_d),
@@ -297,6 +382,31 @@ impl Config {
             "emitters.min_unexplained",
             "must be in [0, 1]",
         )?;
+        let r = &self.refine.paths;
+        check(
+            r.samples.diffuse >= 1 && r.samples.specular.iter().all(|&s| s >= 1),
+            "refine.paths.samples",
+            "every count must be >= 1",
+        )?;
+        check(
+            (2..=64).contains(&r.max_depth),
+            "refine.paths.max_depth",
+            "must be in [2, 64]",
+        )?;
+        check(
+            r.cache_roughness.is_finite() && r.cache_roughness >= 0.0,
+            "refine.paths.cache_roughness",
+            "must be >= 0",
+        )?;
+        check(
+            r.filter.specular_levels.iter().all(|&j| j < 6),
+            "refine.paths.filter.specular_levels",
+            "levels are 0..5",
+        )?;
+        check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
+        if let Some(l) = self.refine.lambda_d {
+            check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
+        }
         check(
             self.maps.albedo_samples >= 1,
             "maps.albedo_samples",
@@ -341,7 +451,7 @@ mod tests {
         for name in ["default.json", "fast.json"] {
             Config::load(&dir.join(name)).unwrap();
         }
-        // default.json holds the defaults (the reference's constants but min_unexplained).
+        // default.json holds the defaults (the reference's constants but the named departures).
         assert_eq!(
             Config::load(&dir.join("default.json")).unwrap(),
             Config::default()

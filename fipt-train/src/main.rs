@@ -77,6 +77,22 @@ enum Cmd {
         /// No progress bars; print metrics.json to stdout.
         #[arg(long)]
         json: bool,
+        /// Fit the oracle shadings (path-traced with the scene's true materials and emitters)
+        /// instead of the baked ones, without refinement: the factorised model's ceiling.
+        #[arg(long)]
+        oracle: bool,
+    },
+    /// Diagnostic: the per-part loss landscape over roughness at the true base colour and
+    /// metallic, for the baked shadings, every refined round cached in OUT and the oracle.
+    Landscape {
+        #[command(flatten)]
+        job: JobArgs,
+        /// Also compute (and cache) the oracle shadings.
+        #[arg(long)]
+        oracle: bool,
+        /// Print landscape.json to stdout instead of tables.
+        #[arg(long)]
+        json: bool,
     },
     /// Recompute the metrics from the maps a previous `run` saved.
     Eval {
@@ -167,6 +183,19 @@ enum BenchCmd {
         #[arg(long, default_value_t = 3)]
         reps: usize,
     },
+    /// The refinement of a few train views of a finished run with the voxel material cache
+    /// and with exact queries of the learned field: time and the difference of the shadings.
+    Refine {
+        #[arg(long)]
+        scene: PathBuf,
+        /// The output folder of a finished `run` (model, emitters, bake cache, config).
+        #[arg(long)]
+        run: PathBuf,
+        #[arg(long)]
+        json: bool,
+        #[arg(long, default_value_t = 2)]
+        views: usize,
+    },
     /// Secondary rays per second of the bake on a built-in scene.
     Bake {
         #[arg(long)]
@@ -203,11 +232,43 @@ fn main() {
             }
             Ok(())
         }),
-        Cmd::Run { job, backend, json } => job.config().and_then(|mut cfg| {
+        Cmd::Landscape { job, oracle, json } => job.config().and_then(|cfg| {
+            let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, oracle, json)?;
+            if json {
+                let s = std::fs::read_to_string(job.out.join("landscape.json"))?;
+                println!("{s}");
+                return Ok(());
+            }
+            for (name, rows) in &tables {
+                println!("\n{name}: argmin over σ at the true a and m");
+                println!(
+                    "part                  pixels   σ true  m true   argmin data   argmin data+prior   render/photo"
+                );
+                for r in rows {
+                    println!(
+                        "{:<20} {:>7}   {:>6.2}  {:>6.2}   {:>11.2}   {:>17.2}   {:>12.3}",
+                        r.name,
+                        r.pixels,
+                        r.sigma_true,
+                        r.m_true,
+                        r.argmin_data,
+                        r.argmin_total,
+                        r.render_ratio
+                    );
+                }
+            }
+            Ok(())
+        }),
+        Cmd::Run {
+            job,
+            backend,
+            json,
+            oracle,
+        } => job.config().and_then(|mut cfg| {
             if let Some(b) = backend {
                 cfg.backend = b;
             }
-            let r = pipeline::run(&job.scene, &job.out, &cfg, json)?;
+            let r = pipeline::run_with(&job.scene, &job.out, &cfg, json, oracle)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             }
@@ -275,6 +336,12 @@ fn main() {
                 reps,
             } => bench::trace(scene.as_deref(), json, rays, reps),
             BenchCmd::Bake { json, reps } => bench::bake(json, reps),
+            BenchCmd::Refine {
+                scene,
+                run,
+                json,
+                views,
+            } => bench::refine(&scene, &run, json, views),
             BenchCmd::Render {
                 scene,
                 json,

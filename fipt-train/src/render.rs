@@ -153,6 +153,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     let accel = Accel::build(&mesh);
     let lights = EmitterSet::new(&mesh, emitters, false, job.selection);
     let scene = PathScene {
+        cache: None,
         accel: &accel,
         materials: &materials,
         emitters: &lights,

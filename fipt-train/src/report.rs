@@ -8,7 +8,9 @@ use crate::metrics::GtRenderPsnr;
 use crate::pipeline::evaluate::{Metrics, PartRow};
 use crate::pipeline::fit::TrainLog;
 use fipt_bake::integrators::bake::BakeConfig;
+use fipt_bake::integrators::path::PathStats;
 use fipt_core::model::step::{SegMode, StepProfile};
+use fipt_core::model::{LossParts, Trainer};
 use serde::{Deserialize, Serialize};
 
 /// L′ as built for the bake.
@@ -84,9 +86,65 @@ impl BakeReport {
 pub struct StageTimes {
     pub load_s: f64,
     pub bake_s: f64,
+    /// All fits, every round.
     pub train_s: f64,
     pub emitters_s: f64,
+    /// All shading refinements.
+    pub refine_s: f64,
     pub maps_s: f64,
+}
+
+/// One round of the alternation: its shadings (baked for round 0, refined after), its fit and
+/// the scores of its model's train maps.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RoundReport {
+    pub round: usize,
+    pub kd_psnr: Option<f64>,
+    pub albedo_psnr: Option<f64>,
+    pub roughness_psnr: Option<f64>,
+    pub emission_iou: Option<f64>,
+    pub emission_log_l2: Option<f64>,
+    /// Per-view k_d PSNR.
+    pub kd_psnr_per_view: Vec<Option<f64>>,
+    pub parts: Option<Vec<PartRow>>,
+    pub steps: u64,
+    /// Mean loss of the fit's last epoch.
+    pub final_loss: Option<LossParts>,
+    /// Seconds of the refinement that made this round's shadings (0 for round 0).
+    pub refine_s: f64,
+    /// Its path counters (None for round 0 or when the shadings came from the cache).
+    pub refine_paths: Option<PathStats>,
+    pub train_s: f64,
+}
+
+impl RoundReport {
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        round: usize,
+        m: &Metrics,
+        parts: Option<Vec<PartRow>>,
+        tr: &Trainer,
+        log: &TrainLog,
+        refine_s: f64,
+        refine_paths: Option<PathStats>,
+        train_s: f64,
+    ) -> Self {
+        Self {
+            round,
+            kd_psnr: m.kd_psnr,
+            albedo_psnr: m.albedo_psnr,
+            roughness_psnr: m.roughness_psnr,
+            emission_iou: m.emission_iou,
+            emission_log_l2: m.emission_log_l2,
+            kd_psnr_per_view: m.per_view.iter().map(|v| v.kd_psnr).collect(),
+            parts,
+            steps: tr.steps,
+            final_loss: log.epochs.last().copied(),
+            refine_s,
+            refine_paths,
+            train_s,
+        }
+    }
 }
 
 /// The hash grid as used by a run.
@@ -113,6 +171,8 @@ pub struct RunReport {
     pub emitters: usize,
     pub grid: GridReport,
     pub parts: Option<Vec<PartRow>>,
+    /// Every round's scores (the last is the final model, also flattened above).
+    pub rounds: Vec<RoundReport>,
     pub train_log: TrainLog,
     pub step_profile: StepProfile,
     pub time_s: StageTimes,
@@ -166,10 +226,25 @@ pub fn print_metrics(m: &Metrics, parts: Option<&[PartRow]>) {
 impl RunReport {
     pub fn print(&self, out: &std::path::Path) {
         print_metrics(&self.metrics, self.parts.as_deref());
+        if self.rounds.len() > 1 {
+            let f = |v: Option<f64>| v.map_or("-".into(), |x| format!("{x:.2}"));
+            println!("\nround   k_d dB   a' dB   σ dB   refine s   train s");
+            for r in &self.rounds {
+                println!(
+                    "{:>5}   {:>6}   {:>5}   {:>4}   {:>8.1}   {:>7.1}",
+                    r.round,
+                    f(r.kd_psnr),
+                    f(r.albedo_psnr),
+                    f(r.roughness_psnr),
+                    r.refine_s,
+                    r.train_s
+                );
+            }
+        }
         let t = &self.time_s;
         println!(
-            "\nstage times: load {:.1} s, bake {:.1} s, train {:.1} s, emitters {:.1} s, maps {:.1} s",
-            t.load_s, t.bake_s, t.train_s, t.emitters_s, t.maps_s
+            "\nstage times: load {:.1} s, bake {:.1} s, train {:.1} s, emitters {:.1} s, refine {:.1} s, maps {:.1} s",
+            t.load_s, t.bake_s, t.train_s, t.emitters_s, t.refine_s, t.maps_s
         );
         println!(
             "{} emitter triangles; peak RSS {}; outputs in {}",

@@ -30,6 +30,11 @@ pub struct Emitter {
     pub mean_alpha: f32,
     /// Photo pixels that saw the triangle.
     pub pixels: u32,
+    /// Photo pixels that saw the triangle's front (winding-normal) side and its back side.
+    #[serde(default)]
+    pub seen_front: u32,
+    #[serde(default)]
+    pub seen_back: u32,
     /// Median over those pixels of the share of the observed radiance that reflection (the
     /// trained BRDF on the baked shadings) leaves unexplained; 1 where no prediction was given.
     pub unexplained: f32,
@@ -104,7 +109,7 @@ pub fn extract(
     }
     let candidate: Vec<bool> = mean_alpha.iter().map(|&a| a > threshold).collect();
     // Per candidate: observed radiance and unexplained share of each pixel that saw it.
-    type Seen = (Vec<[f32; 3]>, Vec<f32>);
+    type Seen = (Vec<[f32; 3]>, Vec<f32>, [u32; 2]);
     let mut seen: std::collections::HashMap<u32, Seen> = Default::default();
     for v in views {
         for (p, &t) in v.hits.tri.iter().enumerate() {
@@ -119,6 +124,10 @@ pub fn extract(
                 let e = seen.entry(t as u32).or_default();
                 e.0.push(gt);
                 e.1.push(share);
+                if let Some(d) = v.hits.direction.get(p) {
+                    let front = mesh.normal(t as usize).dot(*d) < 0.0;
+                    e.2[usize::from(!front)] += 1;
+                }
             }
         }
     }
@@ -127,7 +136,7 @@ pub fn extract(
         if !candidate[t] {
             continue;
         }
-        let Some((px, shares)) = seen.get_mut(&(t as u32)) else {
+        let Some((px, shares, sides)) = seen.get_mut(&(t as u32)) else {
             continue;
         };
         shares.sort_by(f32::total_cmp);
@@ -153,10 +162,33 @@ pub fn extract(
             vertices: [a.to_array(), b.to_array(), c.to_array()],
             mean_alpha: mean_alpha[t],
             pixels: px.len() as u32,
+            seen_front: sides[0],
+            seen_back: sides[1],
             unexplained,
         });
     }
     out
+}
+
+impl Emitter {
+    /// The sides it emits from as observed: both where the photos saw both sides (or neither),
+    /// else the one they saw.
+    pub fn observed_sides(&self) -> EmitterSides {
+        match (self.seen_front > 0, self.seen_back > 0) {
+            (true, false) => EmitterSides::Front,
+            (false, true) => EmitterSides::Back,
+            _ => EmitterSides::Both,
+        }
+    }
+}
+
+/// Which sides of a triangle emit (front: along the winding normal).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EmitterSides {
+    Front,
+    Back,
+    Both,
 }
 
 /// Emitted radiance per triangle (zero where none).
@@ -181,10 +213,13 @@ mod tests {
                 .map(|x| if x[0] < 7.0 { 1.0 } else { 0.0 })
                 .collect()
         };
+        // Triangle 0's winding normal is +z: three pixels look at its front, one at its back.
+        let (down, up) = (Vec3::NEG_Z, Vec3::Z);
         let hits = ViewHits {
             width: 5,
             height: 1,
             tri: vec![0, 0, 0, 0, 2],
+            direction: vec![down, down, up, down, down],
             ..Default::default()
         };
         let img = [
@@ -208,6 +243,16 @@ mod tests {
         assert_eq!(e[0].radiance, [2.0; 3]); // lower median of 1, 2, 3, 4
         assert!((e[0].area - 0.5).abs() < 1e-6);
         assert_eq!(e[0].pixels, 4);
+        assert_eq!((e[0].seen_front, e[0].seen_back), (3, 1));
+        assert_eq!(e[0].observed_sides(), EmitterSides::Both);
+        let one = |f, b| Emitter {
+            seen_front: f,
+            seen_back: b,
+            ..e[0].clone()
+        };
+        assert_eq!(one(5, 0).observed_sides(), EmitterSides::Front);
+        assert_eq!(one(0, 2).observed_sides(), EmitterSides::Back);
+        assert_eq!(one(0, 0).observed_sides(), EmitterSides::Both);
         assert_eq!(e[0].unexplained, 1.0);
         // Reflection explains 90 % of every pixel: the mask only spilled here, no emitter.
         let most = img.map(|v| 0.9 * v);

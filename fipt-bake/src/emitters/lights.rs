@@ -5,6 +5,7 @@
 //! Owns: the emitter list, its selection distribution and point sampling. Must not touch:
 //! visibility, materials.
 
+use super::extract::EmitterSides;
 use fipt_core::scene::Mesh;
 use glam::Vec3;
 
@@ -94,9 +95,28 @@ impl EmitterSet {
         two_sided: bool,
         selection: LightSelection,
     ) -> Self {
+        let sides = if two_sided {
+            EmitterSides::Both
+        } else {
+            EmitterSides::Front
+        };
+        Self::with_sides(
+            mesh,
+            emitters.into_iter().map(|(t, r)| (t, r, sides)),
+            selection,
+        )
+    }
+
+    /// The emitters `(triangle, radiance, emitting sides)` of `mesh`; zero-radiance and
+    /// zero-area entries are skipped. A back-emitting light stores the flipped normal.
+    pub fn with_sides(
+        mesh: &Mesh,
+        emitters: impl IntoIterator<Item = (u32, Vec3, EmitterSides)>,
+        selection: LightSelection,
+    ) -> Self {
         let mut lights = Vec::new();
         let mut by_tri = vec![u32::MAX; mesh.num_triangles()];
-        for (tri, radiance) in emitters {
+        for (tri, radiance, sides) in emitters {
             let [a, b, c] = mesh.corners(tri as usize);
             let cross = (b - a).cross(c - a);
             let area = 0.5 * cross.length();
@@ -109,10 +129,14 @@ impl EmitterSet {
                 v0: a,
                 e1: b - a,
                 e2: c - a,
-                normal: cross.normalize(),
+                normal: if sides == EmitterSides::Back {
+                    -cross.normalize()
+                } else {
+                    cross.normalize()
+                },
                 area,
                 radiance,
-                two_sided,
+                two_sided: sides == EmitterSides::Both,
             });
         }
         let weights: Vec<f64> = lights
@@ -189,6 +213,34 @@ impl EmitterSet {
 mod tests {
     use super::*;
     use fipt_core::scene::Mesh;
+
+    /// One-sided lights emit along their (possibly flipped) normal only; two-sided both ways.
+    #[test]
+    fn emitting_sides() {
+        let m = two_tris();
+        let set = EmitterSet::with_sides(
+            &m,
+            [
+                (0, Vec3::ONE, EmitterSides::Front),
+                (1, Vec3::ONE, EmitterSides::Back),
+            ],
+            LightSelection::Uniform,
+        );
+        for l in &set.lights {
+            let n = l.normal;
+            assert_eq!(l.radiance_towards(n), Vec3::ONE);
+            assert_eq!(l.radiance_towards(-n), Vec3::ZERO);
+        }
+        let winding = |t: usize| {
+            let [a, b, c] = m.corners(t);
+            (b - a).cross(c - a).normalize()
+        };
+        assert!(set.lights[0].normal.dot(winding(0)) > 0.99);
+        assert!(set.lights[1].normal.dot(winding(1)) < -0.99);
+        let both = EmitterSet::new(&m, [(0, Vec3::ONE)], true, LightSelection::Uniform);
+        let n = both.lights[0].normal;
+        assert_eq!(both.lights[0].radiance_towards(-n), Vec3::ONE);
+    }
 
     fn two_tris() -> Mesh {
         Mesh {

@@ -6,5 +6,7 @@
 pub mod extract;
 pub mod lights;
 
-pub use extract::{Emitter, ExtractConfig, ObservedView, extract, radiance_per_triangle};
+pub use extract::{
+    Emitter, EmitterSides, ExtractConfig, ObservedView, extract, radiance_per_triangle,
+};
 pub use lights::{AreaLight, EmitterSet, LightSample, LightSelection};

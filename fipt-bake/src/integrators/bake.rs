@@ -242,7 +242,7 @@ pub fn bake_views(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use fipt_core::brdf::{Brdf, Frame};
     use fipt_core::scene::SceneBox;
@@ -291,7 +291,7 @@ mod tests {
     }
 
     /// A closed unit box whose light field at surface point x is `radiance(x)`.
-    fn lit_box(radiance: &dyn Fn(Vec3) -> f32) -> (Accel, LightField) {
+    pub(crate) fn lit_box(radiance: &dyn Fn(Vec3) -> f32) -> (Accel, LightField) {
         let mut pm = PartMesh::default();
         pm.cuboid("box", Vec3::ZERO, Vec3::ONE, 4);
         let mesh = pm.mesh;
@@ -335,7 +335,7 @@ mod tests {
     }
 
     /// The point on the floor where `box_runs` shades.
-    const FLOOR_X: Vec3 = Vec3::new(0.43, 0.0, 0.57);
+    pub(crate) const FLOOR_X: Vec3 = Vec3::new(0.43, 0.0, 0.57);
 
     fn box_runs((accel, lf): (Accel, LightField), cos_o: f32, spp: usize) -> (Vec<Vec<f32>>, Vec3) {
         let baker = Baker {
@@ -375,7 +375,7 @@ mod tests {
 
     /// Form factor from a differential area facing a parallel rectangle at height 1 to that
     /// rectangle, the area's foot at one corner and sides a, b (Howell's catalogue, C-11 case).
-    fn corner_form_factor(a: f64, b: f64) -> f64 {
+    pub(crate) fn corner_form_factor(a: f64, b: f64) -> f64 {
         let (ra, rb) = ((1.0 + a * a).sqrt(), (1.0 + b * b).sqrt());
         (a / ra * (b / ra).atan() + b / rb * (a / rb).atan()) / std::f64::consts::TAU
     }

@@ -16,6 +16,7 @@
 use crate::accel::Accel;
 use crate::emitters::EmitterSet;
 use crate::integrators::bake::RAY_EPS;
+use crate::lightfield::LightField;
 use crate::materials::{MaterialSource, SurfaceMaterial};
 use fipt_core::brdf::{Brdf, Frame, LobeChoice};
 use fipt_core::rng::Rng;
@@ -86,6 +87,27 @@ pub struct PathScene<'a> {
     pub accel: &'a Accel,
     pub materials: &'a dyn MaterialSource,
     pub emitters: &'a EmitterSet,
+    /// The radiance cache on secondary hits (None: pure path tracing).
+    pub cache: Option<RadianceCache<'a>>,
+}
+
+/// FIPT's radiance-cache termination (reference §2.5): a BRDF-sampled ray (not a camera ray)
+/// that hits a non-emitter surface rougher than `min_roughness`, where L′ is non-zero, takes
+/// L′ there as the incoming radiance and ends the path.
+#[derive(Clone, Copy)]
+pub struct RadianceCache<'a> {
+    pub light_field: &'a LightField,
+    pub min_roughness: f32,
+}
+
+/// A ray that starts a path: origin (already offset), unit direction, its random stream, and
+/// the pdf that MIS-weights an emitter hit of this first segment against one light sample
+/// (0: weight 1, no light sampling at the origin).
+pub struct PathStart {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub rng: Rng,
+    pub pdf: f32,
 }
 
 /// One path in flight.
@@ -103,7 +125,7 @@ struct PathState {
 
 /// Power heuristic weight of a strategy with pdf `a` against one with pdf `b`.
 #[inline]
-fn power_heuristic(a: f32, b: f32) -> f32 {
+pub fn power_heuristic(a: f32, b: f32) -> f32 {
     let (a2, b2) = (a * a, b * b);
     if a2 + b2 > 0.0 && a2.is_finite() {
         a2 / (a2 + b2)
@@ -112,6 +134,16 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
     } else {
         0.0
     }
+}
+
+/// An unoccluded light sample seen from a surface point.
+pub struct LightHit {
+    /// Unit direction from the point to the light.
+    pub wi: Vec3,
+    /// Radiance arriving along `wi`.
+    pub radiance: Vec3,
+    /// Solid-angle pdf of the sample.
+    pub pdf: f32,
 }
 
 /// The closest hit of a live path: (distance, triangle).
@@ -162,31 +194,64 @@ impl PathScene<'_> {
     ) -> (Vec<Vec3>, PathStats) {
         let (w, n_pix) = (camera.width, camera.width * camera.height);
         let origin = camera.origin_f32();
-        let mut paths: Vec<PathState> = (0..count * n_pix)
+        let starts: Vec<Option<PathStart>> = (0..count * n_pix)
             .into_par_iter()
             .map(|i| {
                 let (s, p) = (first + i / n_pix, i % n_pix);
                 let mut rng = Rng::new(cfg.seed, (view_key << 44) | ((p as u64) << 20) | s as u64);
                 let (x, y) = ((p % w) as f64, (p / w) as f64);
                 let (jx, jy) = (rng.next_f64(), rng.next_f64());
-                PathState {
+                Some(PathStart {
                     origin,
                     dir: camera.direction_at(x + jx, y + jy),
+                    rng,
+                    pdf: 0.0,
+                })
+            })
+            .collect();
+        self.trace_paths(starts, cfg, 1)
+    }
+
+    /// Traces paths from the given rays (None: a path that carries nothing, radiance 0) whose
+    /// first segment is segment `first_depth` of a path (1: camera rays; 2: rays leaving a
+    /// first surface, as in shading refinement; the first segment is never MIS-weighted and
+    /// the cache applies from segment 2 on). Returns each path's radiance and the counters.
+    pub fn trace_paths(
+        &self,
+        starts: Vec<Option<PathStart>>,
+        cfg: &PathConfig,
+        first_depth: usize,
+    ) -> (Vec<Vec3>, PathStats) {
+        let mut paths: Vec<PathState> = starts
+            .into_par_iter()
+            .map(|s| match s {
+                Some(s) => PathState {
+                    origin: s.origin,
+                    dir: s.dir,
                     throughput: Vec3::ONE,
                     radiance: Vec3::ZERO,
-                    pdf_bsdf: 0.0,
-                    rng,
+                    pdf_bsdf: s.pdf,
+                    rng: s.rng,
                     alive: true,
-                }
+                },
+                None => PathState {
+                    origin: Vec3::ZERO,
+                    dir: Vec3::Z,
+                    throughput: Vec3::ZERO,
+                    radiance: Vec3::ZERO,
+                    pdf_bsdf: 0.0,
+                    rng: Rng::new(0, 0),
+                    alive: false,
+                },
             })
             .collect();
         let mut stats = PathStats {
-            paths: paths.len() as u64,
+            paths: paths.iter().filter(|p| p.alive).count() as u64,
             ..Default::default()
         };
         let mut hits: Vec<WaveHit> = Vec::new();
         let mut mats: Vec<SurfaceMaterial> = Vec::new();
-        for depth in 1..=cfg.max_depth {
+        for depth in first_depth..=cfg.max_depth {
             // Closest hits of every live ray.
             paths
                 .par_iter()
@@ -250,6 +315,38 @@ impl PathScene<'_> {
         (radiance, stats)
     }
 
+    /// Next-event estimation from `x` (normal `n`): one point on one light from the random
+    /// numbers `u`; the sample if the light faces `x`, lies above its horizon and is not
+    /// occluded, and the shadow rays cast (0 or 1).
+    pub fn sample_light(&self, x: Vec3, n: Vec3, u: (f32, f32, f32)) -> (Option<LightHit>, u64) {
+        let Some(s) = self.emitters.sample(u.0, u.1, u.2) else {
+            return (None, 0);
+        };
+        let to = s.point - x;
+        let d2 = to.length_squared();
+        let dist = d2.sqrt();
+        let wi = to / dist;
+        let lt = &self.emitters.lights[s.light as usize];
+        let le = lt.radiance_towards(-wi);
+        let cos_l = lt.normal.dot(wi).abs();
+        if n.dot(wi) <= 0.0 || le == Vec3::ZERO || cos_l <= 0.0 || dist <= 2.0 * RAY_EPS {
+            return (None, 0);
+        }
+        let o = x + wi * RAY_EPS;
+        if self
+            .accel
+            .occluded(o, wi, 0.0, dist * (1.0 - 1e-4) - RAY_EPS)
+        {
+            return (None, 1);
+        }
+        let hit = LightHit {
+            wi,
+            radiance: le,
+            pdf: s.pdf_area * d2 / cos_l,
+        };
+        (Some(hit), 1)
+    }
+
     /// One vertex of a path at distance `t` on triangle `tri`; returns the shadow rays cast.
     fn shade(
         &self,
@@ -281,6 +378,18 @@ impl PathScene<'_> {
                 ps.alive = false;
                 return 0;
             }
+        } else if let Some(c) = self.cache
+            && depth >= 2
+            && mat.roughness > c.min_roughness
+        {
+            let l = c
+                .light_field
+                .query(x, self.accel.facing_normal(tri, ps.dir));
+            if l.element_sum() > 0.0 {
+                ps.radiance += ps.throughput * l;
+                ps.alive = false;
+                return 0;
+            }
         }
         if depth == cfg.max_depth {
             ps.alive = false;
@@ -291,32 +400,14 @@ impl PathScene<'_> {
         let wo_l = frame.to_local(wo);
         let brdf = Brdf::from_material(mat.base_color, mat.roughness, mat.metallic);
         let p_spec = brdf.spec_probability(cfg.lobe);
-        let mut shadow = 0;
         // Next-event estimation: one point on one light.
-        let (u0, u1, u2) = (ps.rng.next_f32(), ps.rng.next_f32(), ps.rng.next_f32());
-        if let Some(s) = self.emitters.sample(u0, u1, u2) {
-            let to = s.point - x;
-            let d2 = to.length_squared();
-            let dist = d2.sqrt();
-            let wi = to / dist;
-            let cos_x = n.dot(wi);
-            let lt = &self.emitters.lights[s.light as usize];
-            let le = lt.radiance_towards(-wi);
-            let cos_l = lt.normal.dot(wi).abs();
-            if cos_x > 0.0 && le != Vec3::ZERO && cos_l > 0.0 && dist > 2.0 * RAY_EPS {
-                shadow = 1;
-                let o = x + wi * RAY_EPS;
-                if !self
-                    .accel
-                    .occluded(o, wi, 0.0, dist * (1.0 - 1e-4) - RAY_EPS)
-                {
-                    let wi_l = frame.to_local(wi);
-                    let f = brdf.f(wo_l, wi_l);
-                    let pdf_light = s.pdf_area * d2 / cos_l;
-                    let w = power_heuristic(pdf_light, brdf.pdf_mix(wo_l, wi_l, p_spec));
-                    ps.radiance += ps.throughput * f * cos_x * le * (w / pdf_light);
-                }
-            }
+        let u = (ps.rng.next_f32(), ps.rng.next_f32(), ps.rng.next_f32());
+        let (sample, shadow) = self.sample_light(x, n, u);
+        if let Some(l) = sample {
+            let wi_l = frame.to_local(l.wi);
+            let f = brdf.f(wo_l, wi_l);
+            let w = power_heuristic(l.pdf, brdf.pdf_mix(wo_l, wi_l, p_spec));
+            ps.radiance += ps.throughput * f * wi_l.z.max(0.0) * l.radiance * (w / l.pdf);
         }
         // Continue with a BRDF sample.
         let (u0, u1, u2) = (ps.rng.next_f32(), ps.rng.next_f32(), ps.rng.next_f32());
@@ -396,6 +487,7 @@ mod tests {
         let (accel, em) = furnace(sel);
         let mats = Uniform(MAT);
         let scene = PathScene {
+            cache: None,
             accel: &accel,
             materials: &mats,
             emitters: &em,

@@ -30,6 +30,7 @@ pub struct ModelSpec {
 }
 
 /// The two fields of Eq. 14 and the scene box.
+#[derive(Clone)]
 pub struct FiptModel {
     pub spec: ModelSpec,
     pub grid: HashGrid,

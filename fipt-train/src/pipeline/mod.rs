@@ -6,8 +6,10 @@
 //! - `extract`: emitters from the emission mask (§4.4, Eq. 13);
 //! - `predict`: per-view maps of the fitted model; `evaluate`: scores against ground truth.
 //!
-//! `run` reads as the figure: bake → fit → extract → predict → evaluate. Shading refinement by
-//! path tracing (§4.3, Eq. 10–11) does not exist yet, so there is one round.
+//! - `refine`: the shadings path-traced with the current estimate (§4.3, Eq. 10–11);
+//!
+//! `run` reads as the figure: bake → fit → extract → (refine → fit) × rounds → predict →
+//! evaluate.
 //!
 //! Owns: the order of the stages and the output files of `run` and `eval`. Must not touch:
 //! stage internals, argument parsing.
@@ -17,12 +19,14 @@ pub mod bake_job;
 pub mod evaluate;
 pub mod extract;
 pub mod fit;
+pub mod landscape;
 pub mod pixels;
 pub mod predict;
+pub mod refine;
 
 use crate::config::Config;
 use crate::output::{write_json, write_png};
-use crate::report::{EvalReport, GridReport, RunReport, StageTimes};
+use crate::report::{EvalReport, GridReport, RoundReport, RunReport, StageTimes};
 use anyhow::{Context, Result};
 use evaluate::{Metrics, PartRow};
 use fipt_bake::{Accel, ViewHits, emitters};
@@ -71,8 +75,123 @@ fn lap(t: &mut Instant) -> f64 {
     s
 }
 
+/// The train maps of `model` and their scores (where the scene has ground truth).
+fn train_maps(
+    ds: &Dataset,
+    hits: &[ViewHits],
+    model: &fipt_core::model::FiptModel,
+    emission: &[glam::Vec3],
+    cfg: &Config,
+) -> (Vec<ViewMaps>, Metrics, Option<Vec<PartRow>>) {
+    let maps: Vec<ViewMaps> = hits
+        .iter()
+        .enumerate()
+        .map(|(k, h)| {
+            predict_view(
+                model,
+                h,
+                emission,
+                cfg.maps.albedo_samples,
+                cfg.seed ^ k as u64,
+            )
+        })
+        .collect();
+    let (metrics, parts) = score(ds, hits, &maps);
+    (maps, metrics, parts)
+}
+
 /// The whole pipeline; returns the report that is also written to `out/metrics.json`.
 pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
+    run_with(scene, out, cfg, quiet, false)
+}
+
+/// Oracle shadings of a scene with ground truth, cached in `out/cache/oracle.bin`.
+#[allow(clippy::too_many_arguments)]
+fn oracle_cached(
+    scene: &Path,
+    out: &Path,
+    ds: &Dataset,
+    accel: &Accel,
+    baked: &bake::Baked,
+    bake_key: u64,
+    cfg: &Config,
+    quiet: bool,
+) -> Result<Vec<Vec<f32>>> {
+    let mut rcfg = cfg.refine.paths.clone();
+    rcfg.seed = cfg.seed ^ 0x0_7ac1e;
+    let mut h = fipt_core::io::Fnv64::default();
+    h.bytes(&bake_key.to_le_bytes());
+    h.bytes(b"oracle");
+    h.bytes(serde_json::to_string(&rcfg)?.as_bytes());
+    h.bytes(&rcfg.seed.to_le_bytes());
+    let key = h.finish();
+    let path = out.join("cache").join("oracle.bin");
+    let (w, hh) = (ds.train.width, ds.train.height);
+    if let Some(s) = crate::cache::load(&path, key, ds.train.views.len(), w, hh)? {
+        return Ok(s);
+    }
+    let s = refine::oracle(scene, ds, accel, baked, &rcfg, !quiet)?;
+    crate::cache::save(&path, key, w, hh, &s)?;
+    Ok(s)
+}
+
+/// `fipt-train landscape`: the per-part loss landscape (see `landscape`) of the baked
+/// shadings, of every refined round cached in `out/cache`, and with `oracle` of the oracle
+/// shadings; written to `out/landscape.json` and returned as (shadings name, table).
+pub fn landscapes(
+    scene: &Path,
+    out: &Path,
+    cfg: &Config,
+    oracle: bool,
+    quiet: bool,
+) -> Result<Vec<(String, Vec<landscape::PartLandscape>)>> {
+    let ds = Dataset::load(scene, &load_opts())?;
+    let accel = Accel::build(&ds.mesh);
+    let mut bake_cfg = cfg.bake.clone();
+    bake_cfg.seed = cfg.seed;
+    let (baked, _) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
+    let lambda = cfg.train.lambda_d;
+    let mut tables = vec![(
+        "baked".to_string(),
+        landscape::landscape(&ds, &baked.hits, &baked.shadings, lambda),
+    )];
+    let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
+    for r in 1.. {
+        let path = out.join("cache").join(format!("refine{r}.bin"));
+        let Some(s) = crate::cache::load_keyed(&path, None, n, w, h)? else {
+            break;
+        };
+        tables.push((
+            format!("refined{r}"),
+            landscape::landscape(&ds, &baked.hits, &s, lambda),
+        ));
+    }
+    if oracle {
+        let key = crate::cache::cache_key(&ds, &bake_cfg);
+        let s = oracle_cached(scene, out, &ds, &accel, &baked, key, cfg, quiet)?;
+        tables.push((
+            "oracle".to_string(),
+            landscape::landscape(&ds, &baked.hits, &s, lambda),
+        ));
+    }
+    let json: serde_json::Map<String, serde_json::Value> = tables
+        .iter()
+        .map(|(k, v)| (k.clone(), serde_json::to_value(v).unwrap_or_default()))
+        .collect();
+    write_json(&out.join("landscape.json"), &json)?;
+    Ok(tables)
+}
+
+/// `run`; with `oracle`, round 0 fits the oracle shadings (path-traced with the true materials
+/// and emitters, see `refine::oracle`) instead of the baked ones and no refinement follows: the
+/// ceiling of the factorised model.
+pub fn run_with(
+    scene: &Path,
+    out: &Path,
+    cfg: &Config,
+    quiet: bool,
+    oracle: bool,
+) -> Result<RunReport> {
     let mut times = StageTimes::default();
     let mut t = Instant::now();
     let ds = Dataset::load(scene, &load_opts())?;
@@ -83,7 +202,14 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
     // (1) Bake L′ and the shadings.
     let mut bake_cfg = cfg.bake.clone();
     bake_cfg.seed = cfg.seed;
-    let (baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
+    let (mut baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
+    let bake_key = crate::cache::cache_key(&ds, &bake_cfg);
+    let rounds_total = if oracle {
+        baked.shadings = oracle_cached(scene, out, &ds, &accel, &baked, bake_key, cfg, quiet)?;
+        0
+    } else {
+        cfg.refine.rounds
+    };
     times.bake_s = lap(&mut t);
 
     // (2) Fit the material field and the emission mask to the photos.
@@ -92,22 +218,19 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
         ds.train.has_map(MapKind::Segmentation),
     );
     let scene_box = baked.light_field.scene_box;
-    let store = pixels::PixelStore::gather(&ds.train, &baked, &scene_box, mode);
+    let mut store = pixels::PixelStore::gather(&ds.train, &baked, &scene_box, mode);
     let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
     let footprint = pixels::pixel_footprint(&ds.train, &baked.hits, &scene_box);
     let grid_levels = cfg.train.grid.levels_for(footprint);
+    let model_cfg = cfg.train.model_config(grid_levels);
     let plan = fit::FitPlan {
-        cfg: cfg.train.model_config(grid_levels),
+        cfg: model_cfg.clone(),
         scene_box,
         mode,
-        epochs: cfg.train.epochs,
-        batch: cfg.train.batch,
+        schedule: cfg.train.schedule(),
         seed: cfg.seed,
     };
-    let (tr, log) = fit::fit(&store, plan, &device, !quiet);
-    tr.model
-        .save(&out.join("model"))
-        .map_err(anyhow::Error::msg)?;
+    let (mut tr, mut log) = fit::fit(&store, plan, &device, !quiet);
     times.train_s = lap(&mut t);
 
     // (3) Extract the emitters.
@@ -120,17 +243,91 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
         &cfg.emitters,
         cfg.seed,
     );
-    drop(store);
     write_json(
         &out.join("emitters.json"),
         &serde_json::json!({ "emitters": em }),
     )?;
     times.emitters_s = lap(&mut t);
-
-    // (4) Shading refinement by path tracing (§4.3) is not built yet: one round.
-    // (5) Predict the maps of every view and score them.
     let emission = emitters::radiance_per_triangle(ds.mesh.num_triangles(), &em);
-    let mut train_maps = Vec::new();
+
+    // (4) Refine the shadings by path tracing with the current estimate and fit again.
+    let mut rounds = Vec::new();
+    // What made the current round: its refinement (none for round 0) and its fit.
+    let (mut refine_s, mut refine_stats, mut train_s) = (0.0, None, times.train_s);
+    for r in 1..=rounds_total {
+        let (_, m, p) = train_maps(&ds, &baked.hits, &tr.model, &emission, cfg);
+        rounds.push(RoundReport::new(
+            r - 1,
+            &m,
+            p,
+            &tr,
+            &log,
+            refine_s,
+            refine_stats,
+            train_s,
+        ));
+        lap(&mut t);
+        let mut rcfg = cfg.refine.paths.clone();
+        rcfg.seed = cfg.seed ^ ((r as u64) << 32);
+        let key = refine::refine_key(bake_key, &tr.model, &em, &rcfg);
+        let path = out.join("cache").join(format!("refine{r}.bin"));
+        let (w, h) = (ds.train.width, ds.train.height);
+        let shadings = match crate::cache::load(&path, key, ds.train.views.len(), w, h)? {
+            Some(s) => {
+                refine_stats = None;
+                s
+            }
+            None => {
+                let all: Vec<usize> = (0..ds.train.views.len()).collect();
+                let scope = refine::RefineScope {
+                    views: &all,
+                    material_cache: true,
+                };
+                let rf = refine::refine(
+                    &ds.mesh, &accel, &ds.train, &baked, &store, &tr.model, &em, &rcfg, &scope,
+                    !quiet,
+                );
+                crate::cache::save(&path, key, w, h, &rf.shadings)?;
+                refine_stats = Some(rf.stats);
+                rf.shadings
+            }
+        };
+        store.set_shadings(&shadings);
+        drop(shadings);
+        refine_s = lap(&mut t);
+        let schedule = cfg.train.schedule();
+        // A fresh fit starts from the same initial model as round 0 (as the reference, whose
+        // seed is fixed), so a round differs from the last only by its shadings.
+        let seed = if cfg.refine.warm_start {
+            cfg.seed.wrapping_add(r as u64)
+        } else {
+            cfg.seed
+        };
+        let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
+        (tr, log) = if cfg.refine.warm_start {
+            tr.cfg.lambda_d = lambda_d;
+            fit::fit_more(tr, &store, mode, &schedule, seed, !quiet)
+        } else {
+            let plan = fit::FitPlan {
+                cfg: model_cfg.clone().with_lambda_d(lambda_d),
+                scene_box,
+                mode,
+                schedule,
+                seed,
+            };
+            fit::fit(&store, plan, &device, !quiet)
+        };
+        train_s = lap(&mut t);
+        times.refine_s += refine_s;
+        times.train_s += train_s;
+    }
+    drop(store);
+    tr.model
+        .save(&out.join("model"))
+        .map_err(anyhow::Error::msg)?;
+
+    // (5) Predict the maps of every view and score them.
+    let mut train_maps_final = Vec::new();
     for split in ds.splits() {
         let cast: Vec<ViewHits>;
         let hits: &[ViewHits] = if split.name == "train" {
@@ -149,14 +346,24 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
             );
             m.write(&out.join("maps").join(&split.name), k)?;
             if split.name == "train" {
-                train_maps.push(m);
+                train_maps_final.push(m);
             }
         }
     }
     times.maps_s = lap(&mut t);
 
-    let (metrics, parts) = score(&ds, &baked.hits, &train_maps);
-    write_comparisons(&ds, &metrics, &train_maps, out)?;
+    let (metrics, parts) = score(&ds, &baked.hits, &train_maps_final);
+    rounds.push(RoundReport::new(
+        rounds_total,
+        &metrics,
+        parts.clone(),
+        &tr,
+        &log,
+        refine_s,
+        refine_stats,
+        train_s,
+    ));
+    write_comparisons(&ds, &metrics, &train_maps_final, out)?;
     let report = RunReport {
         scene: scene.display().to_string(),
         seg_loss: mode,
@@ -169,6 +376,7 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
             steps: tr.steps,
         },
         parts,
+        rounds,
         train_log: log,
         step_profile: tr.profile,
         time_s: times,

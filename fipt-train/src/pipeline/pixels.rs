@@ -62,6 +62,16 @@ impl PixelStore {
         self.origin.is_empty()
     }
 
+    /// Replaces every entry's shadings by those of its (view, pixel) in `per_view`
+    /// (`ShadingLayout::DIM` values per pixel, per view), e.g. after a refinement.
+    pub fn set_shadings(&mut self, per_view: &[Vec<f32>]) {
+        let d = ShadingLayout::DIM;
+        for (i, &(k, p)) in self.origin.iter().enumerate() {
+            self.pixels.shadings[i * d..(i + 1) * d]
+                .copy_from_slice(ShadingLayout::pixel(&per_view[k as usize], p as usize));
+        }
+    }
+
     /// The batch of the given entries.
     pub fn batch(&self, idx: &[u32]) -> Batch {
         let b = &self.pixels;

@@ -1,0 +1,180 @@
+//! A voxel cache in front of an expensive material source: the mean material of known surface
+//! points (the training pixels' first hits, evaluated once) per voxel of a cube grid; a query
+//! in a voxel that holds none goes to the wrapped source, batched. The cheap form of the
+//! learned field that shading refinement queries at every path vertex.
+//!
+//! Owns: the per-voxel means and the split between cached and forwarded queries. Must not
+//! touch: what the wrapped source computes.
+
+use super::{MaterialSource, SurfaceMaterial};
+use fipt_core::scene::SceneBox;
+use glam::Vec3;
+use std::collections::HashMap;
+
+/// Per-voxel mean materials over a `res³` grid, with a fallback source.
+pub struct VoxelMaterials<'a> {
+    scene_box: SceneBox,
+    res: usize,
+    index: HashMap<u32, u32>,
+    means: Vec<SurfaceMaterial>,
+    fallback: &'a dyn MaterialSource,
+    /// Triangles the fallback must always answer (e.g. emitters, which are black).
+    always_forward: Vec<bool>,
+}
+
+impl<'a> VoxelMaterials<'a> {
+    /// Averages `materials[i]` at `points[i]` per voxel.
+    pub fn build(
+        scene_box: SceneBox,
+        res: usize,
+        points: &[Vec3],
+        materials: &[SurfaceMaterial],
+        fallback: &'a dyn MaterialSource,
+        always_forward: Vec<bool>,
+    ) -> Self {
+        let mut v = Self {
+            scene_box,
+            res: res.clamp(1, 1 << 10),
+            index: HashMap::new(),
+            means: Vec::new(),
+            fallback,
+            always_forward,
+        };
+        let mut sums: Vec<([f64; 5], u32)> = Vec::new();
+        for (p, m) in points.iter().zip(materials) {
+            let key = v.key(*p);
+            let k = *v.index.entry(key).or_insert_with(|| {
+                sums.push(([0.0; 5], 0));
+                (sums.len() - 1) as u32
+            }) as usize;
+            let s = &mut sums[k];
+            for (c, x) in [
+                m.base_color.x,
+                m.base_color.y,
+                m.base_color.z,
+                m.roughness,
+                m.metallic,
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                s.0[c] += x as f64;
+            }
+            s.1 += 1;
+        }
+        v.means = sums
+            .iter()
+            .map(|(s, n)| {
+                let f = |c: usize| (s[c] / *n as f64) as f32;
+                SurfaceMaterial {
+                    base_color: Vec3::new(f(0), f(1), f(2)),
+                    roughness: f(3),
+                    metallic: f(4),
+                }
+            })
+            .collect();
+        v
+    }
+
+    /// Voxels holding a cached mean.
+    pub fn len(&self) -> usize {
+        self.means.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.means.is_empty()
+    }
+
+    #[inline]
+    fn key(&self, p: Vec3) -> u32 {
+        let u = self.scene_box.to_unit(p) * self.res as f32;
+        let c = |x: f32| (x.max(0.0) as usize).min(self.res - 1) as u32;
+        let r = self.res as u32;
+        c(u.x) + r * (c(u.y) + r * c(u.z))
+    }
+
+    /// The cached mean at `p`, if its voxel has one.
+    pub fn cached(&self, p: Vec3) -> Option<SurfaceMaterial> {
+        self.index
+            .get(&self.key(p))
+            .map(|&k| self.means[k as usize])
+    }
+}
+
+impl MaterialSource for VoxelMaterials<'_> {
+    fn query(&self, points: &[Vec3], tris: &[u32], out: &mut Vec<SurfaceMaterial>) {
+        out.clear();
+        let mut missing = Vec::new();
+        for (i, (&p, &t)) in points.iter().zip(tris).enumerate() {
+            let forced = self
+                .always_forward
+                .get(t as usize)
+                .copied()
+                .unwrap_or(false);
+            match (!forced).then(|| self.cached(p)).flatten() {
+                Some(m) => out.push(m),
+                None => {
+                    missing.push(i);
+                    out.push(SurfaceMaterial::BLACK);
+                }
+            }
+        }
+        if missing.is_empty() {
+            return;
+        }
+        let (mp, mt): (Vec<Vec3>, Vec<u32>) = missing.iter().map(|&i| (points[i], tris[i])).unzip();
+        let mut fwd = Vec::with_capacity(missing.len());
+        self.fallback.query(&mp, &mt, &mut fwd);
+        for (&i, m) in missing.iter().zip(fwd) {
+            out[i] = m;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Roughness = x coordinate, so a query tells which source answered.
+    struct ByX;
+    impl MaterialSource for ByX {
+        fn query(&self, points: &[Vec3], _tris: &[u32], out: &mut Vec<SurfaceMaterial>) {
+            out.clear();
+            out.extend(points.iter().map(|p| SurfaceMaterial {
+                base_color: Vec3::ONE,
+                roughness: p.x,
+                metallic: 0.0,
+            }));
+        }
+    }
+
+    #[test]
+    fn means_per_voxel_and_forwarding() {
+        let sb = SceneBox { min: 0.0, max: 1.0 };
+        let m = |r: f32| SurfaceMaterial {
+            base_color: Vec3::splat(r),
+            roughness: r,
+            metallic: 1.0 - r,
+        };
+        // Two points in voxel (0,0,0) of a 4³ grid, one in voxel (3,3,3).
+        let pts = [Vec3::splat(0.05), Vec3::splat(0.2), Vec3::splat(0.9)];
+        let mats = [m(0.2), m(0.6), m(0.9)];
+        let src = ByX;
+        let v = VoxelMaterials::build(sb, 4, &pts, &mats, &src, vec![false, true]);
+        assert_eq!(v.len(), 2);
+        let q = [
+            Vec3::new(0.1, 0.1, 0.1),   // cached: mean of 0.2 and 0.6
+            Vec3::new(0.6, 0.1, 0.1),   // empty voxel: forwarded
+            Vec3::new(0.95, 0.8, 0.76), // cached 0.9
+            Vec3::new(0.1, 0.1, 0.1),   // cached voxel but a forced triangle
+        ];
+        let mut out = Vec::new();
+        v.query(&q, &[0, 0, 0, 1], &mut out);
+        assert!((out[0].roughness - 0.4).abs() < 1e-6);
+        assert!((out[0].metallic - 0.6).abs() < 1e-6);
+        assert!((out[0].base_color.x - 0.4).abs() < 1e-6);
+        assert_eq!(out[1].roughness, 0.6);
+        assert!((out[2].roughness - 0.9).abs() < 1e-6);
+        assert_eq!(out[3].roughness, 0.1);
+    }
+}

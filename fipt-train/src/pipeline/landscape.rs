@@ -1,0 +1,140 @@
+//! The loss landscape per part (a diagnostic for issue-level questions such as "do the
+//! shadings carry the roughness?"): at every training pixel of a part, the stage-2 data term
+//! (MSE of sRGB-encoded HDR, Eq. 15) of the factorised render with the **true** base colour and
+//! metallic and a swept roughness σ, and the diffuse prior λ_d(|σ − 1| + m) of Eq. 17. The
+//! minimiser of the data term over σ says what the shadings support; that of data + prior what
+//! the objective supports.
+//!
+//! Owns: the sweep and its table. Must not touch: shadings, training.
+
+use fipt_bake::ViewHits;
+use fipt_core::brdf::{factorised_render, reflectances};
+use fipt_core::scene::{Dataset, MapKind};
+use fipt_core::shading::ShadingLayout;
+use glam::Vec3;
+
+/// Roughness values swept.
+pub const SWEEP: usize = 50;
+
+/// One part's landscape.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct PartLandscape {
+    pub name: String,
+    pub pixels: usize,
+    pub sigma_true: f64,
+    pub m_true: f64,
+    /// σ_i = 0.02 + 0.98·i/(SWEEP − 1).
+    pub sigma: Vec<f64>,
+    /// Mean data term at each σ_i.
+    pub data: Vec<f64>,
+    /// Mean prior at each σ_i.
+    pub prior: Vec<f64>,
+    pub argmin_data: f64,
+    pub argmin_total: f64,
+    /// Σ render / Σ photo (all channels) with the true a, σ and m: 1 for unbiased shadings.
+    pub render_ratio: f64,
+}
+
+fn srgb(x: f32) -> f64 {
+    let x = x as f64;
+    if x <= 0.0031308 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The landscape of every part of a scene with ground truth (`scene_meta.json` and the
+/// BaseColor/Roughness/Metallic maps); empty without. `shadings` are per train view.
+pub fn landscape(
+    ds: &Dataset,
+    hits: &[ViewHits],
+    shadings: &[Vec<f32>],
+    lambda_d: f32,
+) -> Vec<PartLandscape> {
+    let Some(meta) = ds.meta.as_ref() else {
+        return Vec::new();
+    };
+    let tri_part = meta.triangle_part(ds.mesh.num_triangles());
+    let sweep: Vec<f32> = (0..SWEEP)
+        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
+        .collect();
+    let mut sums = vec![(0f64, 0f64); meta.parts.len()];
+    let mut rows: Vec<PartLandscape> = meta
+        .parts
+        .iter()
+        .map(|p| PartLandscape {
+            name: p.name.clone(),
+            pixels: 0,
+            sigma_true: 0.0,
+            m_true: 0.0,
+            sigma: sweep.iter().map(|&s| s as f64).collect(),
+            data: vec![0.0; SWEEP],
+            prior: vec![0.0; SWEEP],
+            argmin_data: f64::NAN,
+            argmin_total: f64::NAN,
+            render_ratio: f64::NAN,
+        })
+        .collect();
+    for ((v, h), sh) in ds.train.views.iter().zip(hits).zip(shadings) {
+        let (Some(base), Some(r), Some(mt)) = (
+            v.map(MapKind::BaseColor),
+            v.map(MapKind::Roughness),
+            v.map(MapKind::Metallic),
+        ) else {
+            continue;
+        };
+        let emit = v.map(MapKind::Emit);
+        for p in 0..h.num_pixels() {
+            if h.tri[p] < 0 || emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0) {
+                continue;
+            }
+            let Some(part) = meta
+                .parts
+                .iter()
+                .position(|x| x.id == tri_part[h.tri[p] as usize])
+            else {
+                continue;
+            };
+            let row = &mut rows[part];
+            let a = Vec3::from(base.rgb(p));
+            let m = mt.scalar(p);
+            let (kd, ks) = reflectances(a, m);
+            let gt = &v.image.data[3 * p..3 * p + 3];
+            let s = ShadingLayout::pixel(sh, p);
+            let c = factorised_render(kd.to_array(), ks.to_array(), r.scalar(p), s);
+            sums[part].0 += c.iter().map(|&x| x as f64).sum::<f64>();
+            sums[part].1 += gt.iter().map(|&x| x as f64).sum::<f64>();
+            row.pixels += 1;
+            row.sigma_true += r.scalar(p) as f64;
+            row.m_true += m as f64;
+            for (i, &sig) in sweep.iter().enumerate() {
+                let c = factorised_render(kd.to_array(), ks.to_array(), sig, s);
+                let e: f64 = (0..3).map(|k| (srgb(c[k]) - srgb(gt[k])).powi(2)).sum();
+                row.data[i] += e / 3.0;
+                row.prior[i] += (lambda_d * ((sig - 1.0).abs() + m)) as f64;
+            }
+        }
+    }
+    for (r, (a, b)) in rows.iter_mut().zip(&sums) {
+        r.render_ratio = a / b;
+    }
+    rows.retain(|r| r.pixels > 0);
+    for r in &mut rows {
+        let n = r.pixels as f64;
+        r.sigma_true /= n;
+        r.m_true /= n;
+        for i in 0..SWEEP {
+            r.data[i] /= n;
+            r.prior[i] /= n;
+        }
+        let argmin = |f: &dyn Fn(usize) -> f64| {
+            (0..SWEEP)
+                .min_by(|&a, &b| f(a).total_cmp(&f(b)))
+                .map_or(f64::NAN, |i| r.sigma[i])
+        };
+        r.argmin_data = argmin(&|i| r.data[i]);
+        r.argmin_total = argmin(&|i| r.data[i] + r.prior[i]);
+    }
+    rows
+}
