@@ -9,13 +9,45 @@
 use super::{MaterialSource, SurfaceMaterial};
 use fipt_core::scene::SceneBox;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// A multiplicative hash for voxel indices (std's SipHash is several times slower here, and
+/// the keys are not attacker-controlled).
+#[derive(Default)]
+struct VoxelHasher(u64);
+
+impl Hasher for VoxelHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    fn write_u32(&mut self, k: u32) {
+        self.0 = (k as u64)
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .rotate_left(29);
+    }
+}
+
+type VoxelMap = HashMap<u32, u32, BuildHasherDefault<VoxelHasher>>;
+
+/// Marks a point the cache does not answer (a roughness no material has).
+const MISSING: SurfaceMaterial = SurfaceMaterial {
+    base_color: Vec3::ZERO,
+    roughness: f32::NAN,
+    metallic: 0.0,
+};
 
 /// Per-voxel mean materials over a `res³` grid, with a fallback source.
 pub struct VoxelMaterials<'a> {
     scene_box: SceneBox,
     res: usize,
-    index: HashMap<u32, u32>,
+    index: VoxelMap,
     means: Vec<SurfaceMaterial>,
     fallback: &'a dyn MaterialSource,
     /// Triangles the fallback must always answer (e.g. emitters, which are black).
@@ -35,7 +67,7 @@ impl<'a> VoxelMaterials<'a> {
         let mut v = Self {
             scene_box,
             res: res.clamp(1, 1 << 10),
-            index: HashMap::new(),
+            index: VoxelMap::default(),
             means: Vec::new(),
             fallback,
             always_forward,
@@ -104,21 +136,26 @@ impl<'a> VoxelMaterials<'a> {
 impl MaterialSource for VoxelMaterials<'_> {
     fn query(&self, points: &[Vec3], tris: &[u32], out: &mut Vec<SurfaceMaterial>) {
         out.clear();
-        let mut missing = Vec::new();
-        for (i, (&p, &t)) in points.iter().zip(tris).enumerate() {
-            let forced = self
-                .always_forward
-                .get(t as usize)
-                .copied()
-                .unwrap_or(false);
-            match (!forced).then(|| self.cached(p)).flatten() {
-                Some(m) => out.push(m),
-                None => {
-                    missing.push(i);
-                    out.push(SurfaceMaterial::BLACK);
-                }
-            }
-        }
+        points
+            .par_iter()
+            .zip(tris)
+            .with_min_len(4096)
+            .map(|(&p, &t)| {
+                let forced = self
+                    .always_forward
+                    .get(t as usize)
+                    .copied()
+                    .unwrap_or(false);
+                (!forced).then(|| self.cached(p)).flatten()
+            })
+            .map(|m| m.unwrap_or(MISSING))
+            .collect_into_vec(out);
+        let missing: Vec<usize> = out
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| m.roughness.is_nan())
+            .map(|(i, _)| i)
+            .collect();
         if missing.is_empty() {
             return;
         }
