@@ -31,6 +31,13 @@ impl LearnedMaterials {
     }
 }
 
+impl LearnedMaterials {
+    /// Per triangle, whether it is black.
+    pub fn black(&self) -> &[bool] {
+        &self.black
+    }
+}
+
 impl MaterialSource for LearnedMaterials {
     fn query(&self, points: &[Vec3], tris: &[u32], out: &mut Vec<SurfaceMaterial>) {
         out.clear();

@@ -7,8 +7,10 @@
 //! estimators); the radiance arriving along each ray is a path traced through the scene
 //! (`PathScene::trace_paths` from segment 2): emitters end paths and do not reflect, a hit on a
 //! surface rougher than the cache threshold returns L′ there, every other hit continues with
-//! next-event estimation (MIS) and BRDF sampling until `max_depth`. The first bounce is not
-//! MIS-weighted (no light sampling at x, as the reference). The result is filtered as the bake's.
+//! next-event estimation (MIS) and BRDF sampling until `max_depth`. At x itself the reference
+//! samples the BRDF only; with `light_samples` > 0 the emitters are also sampled there, each
+//! estimator's two strategies combined by the power heuristic. The result is filtered as the
+//! bake's.
 //!
 //! Random numbers come from (seed, view, pixel, sample): bit-identical for any thread count.
 //!
@@ -19,8 +21,8 @@ use super::bake::{BakeSamples, RAY_EPS, filter_groups};
 use super::path::{PathConfig, PathScene, PathStart, PathStats, power_heuristic};
 use crate::accel::raycast::ViewHits;
 use fipt_core::brdf::{
-    Frame, LobeChoice, cosine_pdf, fresnel_split, g_schlick_over, ggx_d, roughness_levels,
-    sample_cosine, sample_specular,
+    Frame, LobeChoice, cosine_pdf, fresnel_split, g_schlick_over, ggx_d, ggx_reflection_pdf,
+    roughness_levels, sample_cosine, sample_specular,
 };
 use fipt_core::rng::Rng;
 use fipt_core::shading::ShadingLayout;
@@ -119,7 +121,7 @@ fn first_bounce(
     for (j, sigma) in roughness_levels().into_iter().enumerate() {
         if k < samples.specular[j] {
             let (wi, g0, g1) = sample_specular(wo_l, sigma, u1, u2)?;
-            let pdf = specular_pdf(wo_l, wi, sigma);
+            let pdf = ggx_reflection_pdf(wo_l, wi, sigma);
             return Some((
                 Slot::Specular(j, g0, g1),
                 frame.to_world(wi).normalize(),
@@ -129,13 +131,6 @@ fn first_bounce(
         k -= samples.specular[j];
     }
     None
-}
-
-/// Solid-angle pdf of a GGX-sampled direction at roughness σ (local frame):
-/// D·(n·h)/(4·max(v·h, 1e-4)).
-fn specular_pdf(wo: Vec3, wi: Vec3, sigma: f32) -> f32 {
-    let h = (wo + wi).normalize();
-    ggx_d(h.z, sigma) * h.z.max(0.0) / (4.0 * wo.dot(h).max(1e-4))
 }
 
 /// The integrands of L_s0 and L_s1 at roughness σ for a direction ω_i (local frame), per unit
@@ -150,25 +145,28 @@ fn specular_integrands(wo: Vec3, wi: Vec3, sigma: f32) -> (f32, f32) {
     (base * f0, base * f1)
 }
 
-/// The light-sampled part of every estimator at one pixel: `n` light samples at x, each
-/// weighted by the power heuristic against the estimator's BRDF samples (`samples`); added to
-/// `acc`. Returns the shadow rays cast.
+/// The light-sampled part of every estimator at one pixel (point x, normal `n` facing the
+/// outgoing direction `wo`): `count` light samples at x, each weighted by the power heuristic
+/// against the estimator's BRDF samples (`samples`); added to `acc`. Returns the shadow rays
+/// cast.
 #[allow(clippy::too_many_arguments)]
 fn light_sampled(
     scene: &PathScene,
     x: Vec3,
-    frame: &Frame,
-    wo_l: Vec3,
+    n: Vec3,
+    wo: Vec3,
     samples: &BakeSamples,
-    n: usize,
+    count: usize,
     rng: &mut Rng,
     acc: &mut [f32; ShadingLayout::DIM],
 ) -> u64 {
-    let nl = n as f32;
+    let frame = Frame::new(n);
+    let wo_l = frame.to_local(wo);
+    let nl = count as f32;
     let mut rays = 0;
-    for _ in 0..n {
+    for _ in 0..count {
         let u = (rng.next_f32(), rng.next_f32(), rng.next_f32());
-        let (sample, shadow) = scene.sample_light(x, frame.to_world(Vec3::Z), u);
+        let (sample, shadow) = scene.sample_light(x, n, u);
         rays += shadow;
         let Some(s) = sample else {
             continue;
@@ -187,7 +185,7 @@ fn light_sampled(
             if f0 + f1 <= 0.0 {
                 continue;
             }
-            let pj = specular_pdf(wo_l, wi_l, sigma);
+            let pj = ggx_reflection_pdf(wo_l, wi_l, sigma);
             let w = power_heuristic(nl * p_light, samples.specular[j] as f32 * pj);
             let (s0, s1) = (ShadingLayout::ls0(j).start, ShadingLayout::ls1(j).start);
             for c in 0..3 {
@@ -273,14 +271,12 @@ pub fn refine_view(
                 let mut acc = [0f32; ShadingLayout::DIM];
                 let mut shadow = 0;
                 if nl > 0 {
-                    let frame = Frame::new(hits.normal[p]);
-                    let wo_l = frame.to_local(-hits.direction[p]);
                     let mut rng = Rng::new(cfg.seed ^ 0x11_9447, (view_key << 32) | p as u64);
                     shadow = light_sampled(
                         scene,
                         hits.position[p],
-                        &frame,
-                        wo_l,
+                        hits.normal[p],
+                        -hits.direction[p],
                         &cfg.samples,
                         nl,
                         &mut rng,

@@ -12,7 +12,8 @@ use crate::shading::ShadingLayout;
 pub use frame::Frame;
 pub use ggx::{fresnel_split, g_schlick_over, ggx_d, reflectances, specular_weights};
 pub use sample::{
-    Brdf, LobeChoice, cosine_pdf, directional_albedo_quadrature, sample_cosine, sample_ggx_h,
+    Brdf, LobeChoice, cosine_pdf, directional_albedo_quadrature, ggx_reflection_pdf, sample_cosine,
+    sample_ggx_h,
 };
 
 /// Roughness floor of the material field (reference: σ = 0.02 + 0.98·s).

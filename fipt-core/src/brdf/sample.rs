@@ -80,13 +80,9 @@ impl Brdf {
         self.kd * FRAC_1_PI + f * spec
     }
 
-    /// pdf of the GGX-sampled reflected direction: D·(n·h)/(4·max(v·h, 1e-4)).
+    /// pdf of the GGX-sampled reflected direction (`ggx_reflection_pdf`).
     pub fn pdf_spec(&self, wo: Vec3, wi: Vec3) -> f32 {
-        if wi.z <= 0.0 {
-            return 0.0;
-        }
-        let h = (wo + wi).normalize();
-        ggx_d(h.z, self.sigma) * h.z.max(0.0) / (4.0 * wo.dot(h).max(1e-4))
+        ggx_reflection_pdf(wo, wi, self.sigma)
     }
 
     /// The reference's mixture pdf: 0.5·pdf_spec + 0.5·pdf_cosine.
@@ -150,6 +146,16 @@ impl Brdf {
         let fr = Frame::new(n);
         self.f(fr.to_local(wo), fr.to_local(wi))
     }
+}
+
+/// Solid-angle pdf of the direction ω_i reflected about a GGX-sampled half vector at roughness
+/// σ (local frame, reference §2.1): D·(n·h)/(4·max(v·h, 1e-4)); 0 below the horizon.
+pub fn ggx_reflection_pdf(wo: Vec3, wi: Vec3, sigma: f32) -> f32 {
+    if wi.z <= 0.0 {
+        return 0.0;
+    }
+    let h = (wo + wi).normalize();
+    ggx_d(h.z, sigma) * h.z.max(0.0) / (4.0 * wo.dot(h).max(1e-4))
 }
 
 /// Numerical directional albedo ∫ f cos dω over the hemisphere (midpoint rule in (cos θ, φ)),

@@ -9,7 +9,7 @@ use super::fields::{
 };
 use super::hashgrid::HashGrid;
 use crate::scene::SceneBox;
-use burn::module::Module;
+use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::path::Path;
 
@@ -92,6 +92,20 @@ impl FiptModel {
                 .extend(m.metallic.try_into_vec_as::<f32>().expect("f32"));
         }
         out
+    }
+
+    /// Every network parameter in module order, as host vectors.
+    pub fn net_params(&self) -> Vec<Vec<f32>> {
+        struct Values(Vec<Vec<f32>>);
+        impl ModuleVisitor for Values {
+            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+                self.0
+                    .push(param.val().try_into_vec_as::<f32>().expect("f32 parameter"));
+            }
+        }
+        let mut v = Values(Vec::new());
+        self.nets.visit(&mut v);
+        v.0
     }
 
     /// The material field at world points.

@@ -277,11 +277,9 @@ impl Trainer {
         }
     }
 
-    /// Every network parameter in module order, as host vectors.
+    /// Every network parameter in module order, as host vectors (`FiptModel::net_params`).
     pub fn net_params(&self) -> Vec<Vec<f32>> {
-        let mut visitor = ParamValues { out: Vec::new() };
-        self.model.nets.visit(&mut visitor);
-        visitor.out
+        self.model.net_params()
     }
 
     fn seg_loss(
@@ -370,16 +368,5 @@ impl ModuleVisitor for ParamGrads<'_> {
             Some(g) => g.try_into_vec_as::<f32>().expect("f32 gradient"),
             None => vec![0.0; n],
         });
-    }
-}
-
-struct ParamValues {
-    out: Vec<Vec<f32>>,
-}
-
-impl ModuleVisitor for ParamValues {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        self.out
-            .push(param.val().try_into_vec_as::<f32>().expect("f32 parameter"));
     }
 }

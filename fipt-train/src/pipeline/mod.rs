@@ -75,14 +75,14 @@ fn lap(t: &mut Instant) -> f64 {
     s
 }
 
-/// The train maps of `model` and their scores (where the scene has ground truth).
-fn train_maps(
+/// The scores of `model`'s train maps (where the scene has ground truth).
+fn score_model(
     ds: &Dataset,
     hits: &[ViewHits],
     model: &fipt_core::model::FiptModel,
     emission: &[glam::Vec3],
     cfg: &Config,
-) -> (Vec<ViewMaps>, Metrics, Option<Vec<PartRow>>) {
+) -> (Metrics, Option<Vec<PartRow>>) {
     let maps: Vec<ViewMaps> = hits
         .iter()
         .enumerate()
@@ -96,8 +96,7 @@ fn train_maps(
             )
         })
         .collect();
-    let (metrics, parts) = score(ds, hits, &maps);
-    (maps, metrics, parts)
+    score(ds, hits, &maps)
 }
 
 /// The whole pipeline; returns the report that is also written to `out/metrics.json`.
@@ -255,7 +254,7 @@ pub fn run_with(
     // What made the current round: its refinement (none for round 0) and its fit.
     let (mut refine_s, mut refine_stats, mut train_s) = (0.0, None, times.train_s);
     for r in 1..=rounds_total {
-        let (_, m, p) = train_maps(&ds, &baked.hits, &tr.model, &emission, cfg);
+        let (m, p) = score_model(&ds, &baked.hits, &tr.model, &emission, cfg);
         rounds.push(RoundReport::new(
             r - 1,
             &m,
@@ -296,24 +295,20 @@ pub fn run_with(
         drop(shadings);
         refine_s = lap(&mut t);
         let schedule = cfg.train.schedule();
-        // A fresh fit starts from the same initial model as round 0 (as the reference, whose
-        // seed is fixed), so a round differs from the last only by its shadings.
-        let seed = if cfg.refine.warm_start {
-            cfg.seed.wrapping_add(r as u64)
-        } else {
-            cfg.seed
-        };
         let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
         (tr, log) = if cfg.refine.warm_start {
             tr.cfg.lambda_d = lambda_d;
+            let seed = cfg.seed.wrapping_add(r as u64);
             fit::fit_more(tr, &store, mode, &schedule, seed, !quiet)
         } else {
+            // A fresh fit starts from the same initial model as round 0 (as the reference,
+            // whose seed is fixed), so a round differs from the last only by its shadings.
             let plan = fit::FitPlan {
                 cfg: model_cfg.clone().with_lambda_d(lambda_d),
                 scene_box,
                 mode,
                 schedule,
-                seed,
+                seed: cfg.seed,
             };
             fit::fit(&store, plan, &device, !quiet)
         };

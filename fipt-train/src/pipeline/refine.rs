@@ -1,7 +1,7 @@
 //! Shading refinement (paper §4.3, Eq. 10–11): the training pixels' shadings path-traced with
 //! the current model (its material field at every path vertex, through a voxel cache of the
-//! field at the training hits), the extracted emitters (double-sided, uniform selection, not
-//! reflecting) and L′ as the radiance cache on rough secondary hits. Each round's shadings are
+//! field at the training hits), the extracted emitters (from both sides or the observed ones,
+//! uniform selection, not reflecting) and L′ as the radiance cache on rough secondary hits. Each round's shadings are
 //! cached on disk, keyed by the bake and by the model that produced them.
 //!
 //! Owns: the glue between the fitted model, the emitters and `fipt_bake::integrators::refine`.
@@ -26,7 +26,7 @@ pub struct Refined {
     /// `ShadingLayout::DIM` values per pixel, per view.
     pub shadings: Vec<Vec<f32>>,
     pub stats: PathStats,
-    /// Voxels whose material came from the cache.
+    /// Voxels of the material cache (0 with exact queries).
     pub material_voxels: usize,
 }
 
@@ -42,7 +42,7 @@ pub fn refine_key(
     h.bytes(&bake_key.to_le_bytes());
     h.bytes(&REFINE_CODE_VERSION.to_le_bytes());
     h.f32s(&model.grid.table);
-    for p in model_params(model) {
+    for p in model.net_params() {
         h.f32s(&p);
     }
     for e in emitters {
@@ -56,21 +56,6 @@ pub fn refine_key(
 
 /// Bumped whenever the refinement's maths changes.
 const REFINE_CODE_VERSION: u32 = 1;
-
-fn model_params(model: &FiptModel) -> Vec<Vec<f32>> {
-    use burn::module::{Module, ModuleVisitor, Param};
-    use burn::tensor::Tensor;
-    struct V(Vec<Vec<f32>>);
-    impl ModuleVisitor for V {
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.0
-                .push(param.val().try_into_vec_as::<f32>().expect("f32 parameter"));
-        }
-    }
-    let mut v = V(Vec::new());
-    model.nets.visit(&mut v);
-    v.0
-}
 
 /// Which views to refine and how the learned field is queried.
 pub struct RefineScope<'a> {
@@ -94,29 +79,39 @@ pub fn refine(
     scope: &RefineScope,
     show_progress: bool,
 ) -> Refined {
-    let ntri = mesh.num_triangles();
     let emitter_tris: Vec<u32> = emitters.iter().map(|e| e.triangle).collect();
-    let learned = LearnedMaterials::new(model.clone(), ntri, &emitter_tris);
-    let mut forced = vec![false; ntri];
-    for &t in &emitter_tris {
-        forced[t as usize] = true;
-    }
-    let mv = model.material(&store.pixels.x_unit);
-    let mats: Vec<SurfaceMaterial> = (0..store.len())
-        .map(|i| SurfaceMaterial {
-            base_color: Vec3::from_slice(&mv.a[3 * i..3 * i + 3]),
-            roughness: mv.sigma[i],
-            metallic: mv.metallic[i],
-        })
-        .collect();
-    let points: Vec<Vec3> = store
-        .pixels
-        .x_world
-        .iter()
-        .map(|p| Vec3::from(*p))
-        .collect();
-    let lf = &baked.light_field;
-    let materials = VoxelMaterials::build(lf.scene_box, lf.res, &points, &mats, &learned, forced);
+    let learned = LearnedMaterials::new(model.clone(), mesh.num_triangles(), &emitter_tris);
+    // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
+    // always go to the learned source (black).
+    let voxels = scope.material_cache.then(|| {
+        let mv = model.material(&store.pixels.x_unit);
+        let mats: Vec<SurfaceMaterial> = (0..store.len())
+            .map(|i| SurfaceMaterial {
+                base_color: Vec3::from_slice(&mv.a[3 * i..3 * i + 3]),
+                roughness: mv.sigma[i],
+                metallic: mv.metallic[i],
+            })
+            .collect();
+        let points: Vec<Vec3> = store
+            .pixels
+            .x_world
+            .iter()
+            .map(|p| Vec3::from(*p))
+            .collect();
+        let lf = &baked.light_field;
+        VoxelMaterials::build(
+            lf.scene_box,
+            lf.res,
+            &points,
+            &mats,
+            &learned,
+            learned.black().to_vec(),
+        )
+    });
+    let source: &dyn MaterialSource = match &voxels {
+        Some(v) => v,
+        None => &learned,
+    };
     let lights = EmitterSet::with_sides(
         mesh,
         emitters.iter().map(|e| {
@@ -129,11 +124,6 @@ pub fn refine(
         }),
         LightSelection::Uniform,
     );
-    let source: &dyn MaterialSource = if scope.material_cache {
-        &materials
-    } else {
-        &learned
-    };
     let (shadings, stats) = refine_with(
         accel,
         train,
@@ -147,7 +137,7 @@ pub fn refine(
     Refined {
         shadings,
         stats,
-        material_voxels: materials.len(),
+        material_voxels: voxels.as_ref().map_or(0, VoxelMaterials::len),
     }
 }
 
