@@ -17,7 +17,12 @@ fn scene_dir() -> PathBuf {
 
 fn job(out: &str, relight: bool) -> RenderJob {
     RenderJob {
-        scene: scene_dir(),
+        scene: Some(scene_dir()),
+        source: fipt_train::render::Source::Truth,
+        insert: None,
+        cache: false,
+        material_cache: false,
+        off_reflect: false,
         out: std::env::temp_dir().join(format!("fipt-render-{}-{out}", std::process::id())),
         split: "val".into(),
         views: vec![0, 5],
@@ -139,6 +144,12 @@ fn bad_render_input_is_named() {
     assert_render_fails(&d, true, &["relight.json", "bad JSON"]);
     std::fs::write(d.join("relight.json"), r#"{"emitters_off": ["floor"]}"#).unwrap();
     assert_render_fails(&d, true, &["relight.json", "floor"]);
+    std::fs::write(
+        d.join("relight.json"),
+        r#"{"emitters_scale": {"lamp": -1}}"#,
+    )
+    .unwrap();
+    assert_render_fails(&d, true, &["relight.json", "lamp"]);
     // A missing texture.
     let d = scene_copy("texture");
     std::fs::remove_file(d.join("textures/floor_planks.exr")).unwrap();
@@ -178,4 +189,34 @@ fn cameras_file_gives_the_split_cameras() {
     for d in [a.out, b.out] {
         let _ = std::fs::remove_dir_all(d);
     }
+}
+
+/// Rescaling every emitter by 2 (`emitters_scale: {"all": 2}`) doubles the image exactly: the
+/// same paths (power-weighted light selection is scale-free), twice the radiance.
+#[test]
+fn rescaled_emitters_scale_the_image() {
+    let mut a = job("scale", false);
+    a.views = vec![5];
+    a.path.spp = 4;
+    let mut b = a.clone();
+    b.out = a.out.with_extension("x2");
+    let file = b.out.with_extension("json");
+    std::fs::create_dir_all(&b.out).unwrap();
+    std::fs::write(&file, r#"{"emitters_scale": {"all": 2}}"#).unwrap();
+    b.relight = Some(file.clone());
+    render(&a).unwrap();
+    render(&b).unwrap();
+    let read = |p: PathBuf| fipt_core::scene::Image::read_exr(&p).unwrap().data;
+    let (x, y) = (
+        read(a.out.join("val/Image/005_0001.exr")),
+        read(b.out.join("val/Relight/005_0001.exr")),
+    );
+    assert!(x.iter().any(|&v| v > 0.0));
+    for (p, q) in x.iter().zip(&y) {
+        assert!((2.0 * p - q).abs() <= 1e-5 * q.abs().max(1e-3), "{p} {q}");
+    }
+    for d in [a.out, b.out] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+    let _ = std::fs::remove_file(file);
 }

@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod dataset;
 pub mod image;
+pub mod insert;
 pub mod mesh;
 pub mod meta;
 pub mod procedural;

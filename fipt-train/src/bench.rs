@@ -480,8 +480,13 @@ pub fn render(scene: &Path, as_json: bool, spp: usize, views: usize, reps: usize
     let out = std::env::temp_dir().join(format!("fipt-bench-render-{}", std::process::id()));
     let has_val = scene.join("val").is_dir();
     let job = RenderJob {
-        scene: scene.to_path_buf(),
+        scene: Some(scene.to_path_buf()),
         out: out.clone(),
+        source: crate::render::Source::Truth,
+        insert: None,
+        cache: false,
+        material_cache: false,
+        off_reflect: false,
         split: if has_val { "val" } else { "train" }.into(),
         views: (0..views).collect(),
         cameras: None,
@@ -643,4 +648,106 @@ pub fn refine(scene: &Path, run: &Path, as_json: bool, views: usize) -> Result<(
         println!("{}", serde_json::to_string_pretty(&r)?);
     }
     Ok(())
+}
+
+/// `bench query`: material queries per second of a scene model's learned field, as the path
+/// tracer makes them (batches of `batch` points spread on the mesh): exact (hash-grid encoding
+/// and MLP; the encoding alone reported beside) and through the voxel cache of `render`.
+pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Result<()> {
+    use fipt_bake::materials::{MaterialSource, VoxelMaterials};
+    let device = burn::tensor::Device::flex();
+    let sm = crate::scene_model::SceneModel::load(model_dir, &device)?;
+    let learned =
+        crate::learned::LearnedMaterials::new(sm.model.clone(), sm.mesh.num_triangles(), &[]);
+    let lf = &sm.light_field;
+    let t0 = std::time::Instant::now();
+    let (voxels, evaluated) = VoxelMaterials::from_surface(
+        lf.scene_box,
+        lf.res,
+        &sm.mesh,
+        &learned,
+        vec![false; sm.mesh.num_triangles()],
+        2.0,
+        0,
+    );
+    let build_s = t0.elapsed().as_secs_f64();
+    // Points spread on the surface (another seed than the cache's).
+    let (pts, tris) = surface_sample(&sm.mesh, batch, 7);
+    let x_unit: Vec<[f32; 3]> = pts
+        .iter()
+        .map(|&p| sm.model.spec.scene_box.to_unit(p).to_array())
+        .collect();
+    let mut out = Vec::new();
+    let time = |f: &mut dyn FnMut()| {
+        median(
+            (0..reps)
+                .map(|_| {
+                    let t = std::time::Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64()
+                })
+                .collect(),
+        )
+    };
+    let exact = time(&mut || learned.query(&pts, &tris, &mut out));
+    let encode = time(&mut || {
+        std::hint::black_box(sm.model.grid.encode(&x_unit));
+    });
+    let cached = time(&mut || voxels.query(&pts, &tris, &mut out));
+    let j = serde_json::json!({
+        "bench": "query",
+        "model": model_dir.display().to_string(),
+        "batch": batch,
+        "threads": rayon::current_num_threads(),
+        "exact_points_per_s": batch as f64 / exact,
+        "encode_points_per_s": batch as f64 / encode,
+        "encode_share": encode / exact,
+        "cached_points_per_s": batch as f64 / cached,
+        "cache_voxels": voxels.len(),
+        "cache_points_evaluated": evaluated,
+        "cache_build_s": build_s,
+    });
+    if as_json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        println!(
+            "exact field: {:.2} M points/s (encoding {:.0} % of it); voxel cache: {:.1} M points/s ({} voxels from {} points in {:.2} s)",
+            batch as f64 / exact / 1e6,
+            100.0 * encode / exact,
+            batch as f64 / cached / 1e6,
+            voxels.len(),
+            evaluated,
+            build_s
+        );
+    }
+    Ok(())
+}
+
+/// `n` points uniform by area on `mesh` with their triangles (deterministic in `seed`).
+pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> (Vec<Vec3>, Vec<u32>) {
+    let areas: Vec<f32> = (0..mesh.num_triangles())
+        .map(|t| {
+            let [a, b, c] = mesh.corners(t);
+            0.5 * (b - a).cross(c - a).length()
+        })
+        .collect();
+    let mut cdf = Vec::with_capacity(areas.len());
+    let mut acc = 0.0f64;
+    for a in &areas {
+        acc += *a as f64;
+        cdf.push(acc);
+    }
+    let mut rng = fipt_core::rng::Rng::new(seed, 0);
+    (0..n)
+        .map(|_| {
+            let x = rng.next_f64() * acc;
+            let t = cdf.partition_point(|&c| c < x).min(areas.len() - 1);
+            let [a, b, c] = mesh.corners(t);
+            let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            (a + (b - a) * u + (c - a) * v, t as u32)
+        })
+        .unzip()
 }

@@ -29,6 +29,7 @@ pub struct Config {
     pub emitters: EmitterSection,
     pub refine: RefineSection,
     pub maps: MapsSection,
+    pub render: RenderSection,
 }
 
 /// Shading refinement and the alternation (paper §4.3; reference §2.5–2.6).
@@ -78,6 +79,7 @@ impl Default for Config {
             emitters: EmitterSection::default(),
             refine: RefineSection::default(),
             maps: MapsSection::default(),
+            render: RenderSection::default(),
         }
     }
 }
@@ -238,6 +240,44 @@ impl Default for MapsSection {
     }
 }
 
+/// The re-renders of `run` (view synthesis of the val views and, where the scene has
+/// `relight.json` and `val/Relight`, relighting), scored as `view_psnr` and `relight_psnr`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSection {
+    /// Render and score the val views in `run`.
+    pub val: bool,
+    /// Samples per pixel of view synthesis (the reference's demo: 512).
+    pub spp: usize,
+    /// Samples per pixel of relighting (the reference's demo: 32, in Mitsuba).
+    pub relight_spp: usize,
+    /// Maximum path length in segments (the reference: 7).
+    pub max_depth: usize,
+    /// View synthesis takes L′ on rough secondary hits (the reference's scheme; relighting
+    /// never does).
+    pub cache: bool,
+    /// Hits after the first segment read the learned field through a voxel cache (camera hits
+    /// read it exactly); see `render::RecoveredOptions`.
+    pub material_cache: bool,
+    /// Relighting: switched-off emitters reflect with the learned field (a departure from the
+    /// reference, which makes them black; see `render::RecoveredOptions::off_reflect`).
+    pub off_reflect: bool,
+}
+
+impl Default for RenderSection {
+    fn default() -> Self {
+        Self {
+            val: true,
+            spp: 256,
+            relight_spp: 64,
+            max_depth: 7,
+            cache: true,
+            material_cache: true,
+            off_reflect: true,
+        }
+    }
+}
+
 fn check(ok: bool, key: &str, what: &str) -> Result<()> {
     if !ok {
         bail!("{key}: {what}");
@@ -265,6 +305,17 @@ impl Config {
 
     /// Range checks.
     pub fn validate(&self) -> Result<()> {
+        let r = &self.render;
+        check(
+            (1..=1 << 16).contains(&r.spp) && (1..=1 << 16).contains(&r.relight_spp),
+            "render.spp",
+            "sample counts must be in [1, 65536]",
+        )?;
+        check(
+            (1..=64).contains(&r.max_depth),
+            "render.max_depth",
+            "must be in [1, 64]",
+        )?;
         let b = &self.bake;
         check(
             b.voxel_res >= 8 && b.voxel_res.is_multiple_of(8) && b.voxel_res <= 4096,

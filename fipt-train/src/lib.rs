@@ -15,3 +15,5 @@ pub mod pipeline;
 pub mod progress;
 pub mod render;
 pub mod report;
+pub mod scene_model;
+pub mod zoo;

@@ -81,6 +81,15 @@ enum Cmd {
         /// instead of the baked ones, without refinement: the factorised model's ceiling.
         #[arg(long)]
         oracle: bool,
+        /// The zoo to register the scene model in (default: $FIPT_ZOO, else zoo/ beside OUT).
+        #[arg(long)]
+        zoo: Option<PathBuf>,
+        /// The model's name in the zoo (default: <scene folder>-s<seed>).
+        #[arg(long)]
+        name: Option<String>,
+        /// Do not register the model in a zoo (it is still written to OUT/model).
+        #[arg(long, conflicts_with_all = ["zoo", "name"])]
+        no_zoo: bool,
     },
     /// Diagnostic: the per-part loss landscape over roughness at the true base colour and
     /// metallic, for the baked shadings, every refined round cached in OUT and the oracle.
@@ -94,25 +103,56 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Recompute the metrics from the maps a previous `run` saved.
+    /// Recompute the metrics from the maps a previous `run` saved (or, with --model, from a
+    /// scene model's predictions).
     Eval {
         #[arg(long)]
         scene: PathBuf,
         #[arg(long)]
         out: PathBuf,
+        /// Score this scene model (a folder or a zoo name) instead of OUT's saved maps.
+        #[arg(long)]
+        model: Option<String>,
+        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+        #[arg(long)]
+        zoo: Option<PathBuf>,
         /// Print eval.json to stdout instead of the tables.
         #[arg(long)]
         json: bool,
     },
-    /// Path-traced images of a scene's cameras (`--truth`: the true scene of scene_meta.json).
+    /// Path-traced images: of a recovered scene model (`--model`) or of the true scene
+    /// (`--truth`), from a split's cameras or new ones, relit, with inserted objects.
+    #[command(group(clap::ArgGroup::new("source").required(true).args(["truth", "model"])))]
     Render {
+        /// The scene folder: its cameras, reference images and ground truth (required with
+        /// --truth; with --model, for its cameras and scores).
         #[arg(long)]
-        scene: PathBuf,
+        scene: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
         /// Render the true scene (materials, textures and emitters of scene_meta.json).
-        #[arg(long, required = true)]
+        #[arg(long)]
         truth: bool,
+        /// Render a recovered scene model: a model folder, or a name in the zoo.
+        #[arg(long)]
+        model: Option<String>,
+        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+        #[arg(long)]
+        zoo: Option<PathBuf>,
+        /// Objects to insert (JSON: OBJ files or shapes, placement, material or emission).
+        #[arg(long)]
+        insert: Option<PathBuf>,
+        /// Pure path tracing: no L′ on rough secondary hits (models; relighting never uses it).
+        #[arg(long)]
+        no_cache: bool,
+        /// Read the exact learned field at every hit (default: a voxel cache after the first
+        /// segment; camera hits are always exact).
+        #[arg(long)]
+        exact_materials: bool,
+        /// Relighting: switched-off emitters are black (the reference) instead of reflecting
+        /// with the learned field.
+        #[arg(long)]
+        off_black: bool,
         /// Which cameras: train or val.
         #[arg(long, default_value = "val")]
         split: String,
@@ -127,7 +167,8 @@ enum Cmd {
         /// Maximum path length in segments (Mitsuba's max_depth).
         #[arg(long, default_value_t = 7)]
         max_depth: usize,
-        /// relight.json: emitters off and new emitters added; renders go to Relight/.
+        /// relight.json: emitters off or rescaled (part names or "all") and new emitters
+        /// added; renders go to Relight/.
         #[arg(long)]
         relight: Option<PathBuf>,
         /// Emitter selection for next-event estimation: uniform, area or power.
@@ -145,12 +186,40 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The model zoo: scene models recovered by `run`, by name.
+    Zoo {
+        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+        #[arg(long, global = true)]
+        zoo: Option<PathBuf>,
+        #[command(subcommand)]
+        what: ZooCmd,
+    },
     /// Print the default configuration (`configs/default.json`) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
     Bench {
         #[command(subcommand)]
         what: BenchCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum ZooCmd {
+    /// Name, scene, date, size and headline metrics of every model.
+    List {
+        #[arg(long)]
+        json: bool,
+    },
+    /// One model's manifest (after checking every file against it).
+    Show { name: String },
+    /// Removes a model.
+    Rm { name: String },
+    /// Copies a model folder into the zoo after loading it fully.
+    Import {
+        dir: PathBuf,
+        /// The name in the zoo (default: the model's own).
+        #[arg(long)]
+        name: Option<String>,
     },
 }
 
@@ -195,6 +264,23 @@ enum BenchCmd {
         json: bool,
         #[arg(long, default_value_t = 2)]
         views: usize,
+    },
+    /// Material queries per second of a scene model's learned field: exact and through the
+    /// voxel cache that rendering uses after the first segment.
+    Query {
+        /// A scene model folder or a zoo name.
+        #[arg(long)]
+        model: String,
+        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+        #[arg(long)]
+        zoo: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+        /// Points per query (the path tracer's wavefronts hold up to 2^18).
+        #[arg(long, default_value_t = 1 << 18)]
+        batch: usize,
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
     },
     /// Secondary rays per second of the bake on a built-in scene.
     Bake {
@@ -264,17 +350,78 @@ fn main() {
             backend,
             json,
             oracle,
+            zoo,
+            name,
+            no_zoo,
         } => job.config().and_then(|mut cfg| {
             if let Some(b) = backend {
                 cfg.backend = b;
             }
-            let r = pipeline::run_with(&job.scene, &job.out, &cfg, json, oracle)?;
+            let zoo = if no_zoo {
+                None
+            } else {
+                let dir = fipt_train::zoo::resolve(zoo.as_deref(), &fipt_train::zoo::beside(&job.out));
+                let name =
+                    name.unwrap_or_else(|| pipeline::default_model_name(&job.scene, cfg.seed));
+                fipt_train::zoo::check_name(&name)?;
+                Some((dir, name))
+            };
+            let opts = pipeline::RunOptions {
+                quiet: json,
+                oracle,
+                zoo,
+            };
+            let r = pipeline::run_with(&job.scene, &job.out, &cfg, &opts)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             }
             Ok(())
         }),
-        Cmd::Eval { scene, out, json } => pipeline::eval(&scene, &out).and_then(|r| {
+        Cmd::Zoo { zoo, what } => {
+            let z = fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
+                zoo.as_deref(),
+                std::path::Path::new("zoo"),
+            ));
+            match what {
+                ZooCmd::List { json } => z.list().and_then(|entries| {
+                    if json {
+                        println!("{}", serde_json::to_string_pretty(&entries)?);
+                    } else {
+                        println!("zoo: {}", z.dir.display());
+                        fipt_train::zoo::print_list(&entries);
+                    }
+                    Ok(())
+                }),
+                ZooCmd::Show { name } => z.locate(&name).and_then(|dir| {
+                    let m = fipt_train::scene_model::read_manifest(&dir)?;
+                    fipt_train::scene_model::verify_files(&dir, &m)?;
+                    println!("{}", serde_json::to_string_pretty(&m)?);
+                    Ok(())
+                }),
+                ZooCmd::Rm { name } => z.remove(&name).map(|_| {
+                    println!("removed {}", z.dir.join(&name).display());
+                }),
+                ZooCmd::Import { dir, name } => z.import(&dir, name.as_deref()).map(|to| {
+                    println!("imported {} as {}", dir.display(), to.display());
+                }),
+            }
+        }
+        Cmd::Eval {
+            scene,
+            out,
+            model,
+            zoo,
+            json,
+        } => match model {
+            Some(m) => fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
+                zoo.as_deref(),
+                std::path::Path::new("zoo"),
+            ))
+            .locate(&m)
+            .and_then(|dir| pipeline::eval_model(&scene, &dir, &out)),
+            None => pipeline::eval(&scene, &out),
+        }
+        .and_then(|r| {
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {
@@ -286,6 +433,12 @@ fn main() {
             scene,
             out,
             truth: _,
+            model,
+            zoo,
+            insert,
+            no_cache,
+            exact_materials,
+            off_black,
             split,
             views,
             cameras,
@@ -298,13 +451,25 @@ fn main() {
             seed,
             json,
         } => {
+            let source = match model {
+                Some(name_or_dir) => fipt_train::render::Source::Model {
+                    name_or_dir,
+                    zoo: fipt_train::zoo::resolve(zoo.as_deref(), std::path::Path::new("zoo")),
+                },
+                None => fipt_train::render::Source::Truth,
+            };
             let job = fipt_train::render::RenderJob {
                 scene,
                 out,
+                source,
                 split,
                 views,
                 cameras,
                 relight,
+                insert,
+                cache: !no_cache,
+                material_cache: !exact_materials,
+                off_reflect: !off_black,
                 selection: light_selection,
                 path: fipt_bake::integrators::path::PathConfig {
                     spp,
@@ -349,6 +514,18 @@ fn main() {
                 views,
                 reps,
             } => bench::render(&scene, json, spp, views, reps),
+            BenchCmd::Query {
+                model,
+                zoo,
+                json,
+                batch,
+                reps,
+            } => fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
+                zoo.as_deref(),
+                std::path::Path::new("zoo"),
+            ))
+            .locate(&model)
+            .and_then(|dir| bench::query(&dir, json, batch, reps)),
             BenchCmd::Step {
                 backend,
                 json,

@@ -92,6 +92,21 @@ pub struct StageTimes {
     /// All shading refinements.
     pub refine_s: f64,
     pub maps_s: f64,
+    /// The val re-renders (view synthesis and relighting).
+    #[serde(default)]
+    pub render_s: f64,
+}
+
+/// The re-renders of the val views by `run`: view synthesis against `val/Image` and
+/// relighting against `val/Relight` (`OUT/render/val/{Image,Relight}/`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ValRenders {
+    pub spp: usize,
+    pub relight_spp: usize,
+    /// Whether view synthesis took L′ on rough secondary hits.
+    pub cache: bool,
+    pub view: Vec<crate::render::ViewRender>,
+    pub relight: Vec<crate::render::ViewRender>,
 }
 
 /// One round of the alternation: its shadings (baked for round 0, refined after), its fit and
@@ -177,6 +192,14 @@ pub struct RunReport {
     pub step_profile: StepProfile,
     pub time_s: StageTimes,
     pub peak_rss_mb: Option<f64>,
+    /// Mean over the val views of PSNR(clip(x,0,1)^(1/2.2)) of the re-render vs `val/Image`.
+    pub view_psnr: Option<f64>,
+    /// The same for the relit val views vs `val/Relight`.
+    pub relight_psnr: Option<f64>,
+    pub renders: Option<ValRenders>,
+    /// The scene model folder (`OUT/model`) and, where registered, its zoo entry.
+    pub model_dir: Option<String>,
+    pub zoo_entry: Option<String>,
 }
 
 /// `eval.json`: the scores recomputed from saved maps.
@@ -241,10 +264,18 @@ impl RunReport {
                 );
             }
         }
+        if self.view_psnr.is_some() || self.relight_psnr.is_some() {
+            let f = |v: Option<f64>| v.map_or("-".into(), |x| format!("{x:.2} dB"));
+            println!(
+                "\nval re-renders: view synthesis {}, relighting {}",
+                f(self.view_psnr),
+                f(self.relight_psnr)
+            );
+        }
         let t = &self.time_s;
         println!(
-            "\nstage times: load {:.1} s, bake {:.1} s, train {:.1} s, emitters {:.1} s, refine {:.1} s, maps {:.1} s",
-            t.load_s, t.bake_s, t.train_s, t.emitters_s, t.refine_s, t.maps_s
+            "\nstage times: load {:.1} s, bake {:.1} s, train {:.1} s, emitters {:.1} s, refine {:.1} s, maps {:.1} s, render {:.1} s",
+            t.load_s, t.bake_s, t.train_s, t.emitters_s, t.refine_s, t.maps_s, t.render_s
         );
         println!(
             "{} emitter triangles; peak RSS {}; outputs in {}",
@@ -253,5 +284,11 @@ impl RunReport {
                 .map_or("-".into(), |m| format!("{m:.0} MB")),
             out.display()
         );
+        if let Some(m) = &self.model_dir {
+            println!("scene model: {m}");
+        }
+        if let Some(z) = &self.zoo_entry {
+            println!("zoo entry: {z}");
+        }
     }
 }

@@ -86,6 +86,9 @@ impl PathStats {
 pub struct PathScene<'a> {
     pub accel: &'a Accel,
     pub materials: &'a dyn MaterialSource,
+    /// A cheaper source for every hit but the first segment's (e.g. a voxel cache of the
+    /// learned field; None: `materials` everywhere).
+    pub secondary_materials: Option<&'a dyn MaterialSource>,
     pub emitters: &'a EmitterSet,
     /// The radiance cache on secondary hits (None: pure path tracing).
     pub cache: Option<RadianceCache<'a>>,
@@ -274,7 +277,11 @@ impl PathScene<'_> {
                     h.map(|(t, tri)| (i, (paths[i].origin + paths[i].dir * t, tri)))
                 })
                 .unzip();
-            self.materials.query(&points, &tris, &mut mats);
+            let source = match self.secondary_materials {
+                Some(m) if depth >= 2 => m,
+                _ => self.materials,
+            };
+            source.query(&points, &tris, &mut mats);
             let mut mat_of = vec![u32::MAX; paths.len()];
             for (k, &i) in idx.iter().enumerate() {
                 mat_of[i] = k as u32;
@@ -487,6 +494,7 @@ mod tests {
         let (accel, em) = furnace(sel);
         let mats = Uniform(MAT);
         let scene = PathScene {
+            secondary_materials: None,
             cache: None,
             accel: &accel,
             materials: &mats,

@@ -386,6 +386,7 @@ mod tests {
         let lights = EmitterSet::new(mesh, ceiling, true, LightSelection::Uniform);
         let mats = Uniform(sigma);
         let scene = PathScene {
+            secondary_materials: None,
             accel: &accel,
             materials: &mats,
             emitters: &lights,

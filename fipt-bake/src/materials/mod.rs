@@ -1,16 +1,19 @@
 //! Materials at surface points, behind one batched query: the path tracer asks for a whole
 //! wavefront of hit points at once (positions + triangle ids → base colour a, roughness σ,
 //! metallic m). Implementations: the true scene of a `scene_meta.json` (`scene_meta`); a voxel
-//! cache of per-voxel means in front of another source (`voxel`); the learned model lives in
+//! cache of per-voxel means in front of another source (`voxel`); appended geometry over another
+//! source (`overlay`); the learned model lives in
 //! fipt-train (burn inference), behind the same trait.
 //!
 //! Owns: the trait and the true-scene source. Must not touch: light transport.
 
+pub mod overlay;
 pub mod scene_meta;
 pub mod voxel;
 
 use glam::Vec3;
 
+pub use overlay::Overlay;
 pub use scene_meta::TrueMaterials;
 pub use voxel::VoxelMaterials;
 

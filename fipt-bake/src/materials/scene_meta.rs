@@ -60,9 +60,8 @@ pub struct TrueMaterials {
     parts: Vec<PartMat>,
     /// Index into `parts` per triangle.
     tri_part: Vec<u32>,
-    /// Triangles from this index on (added geometry, e.g. a relighting emitter) get `extra`.
+    /// Triangles from this index on (added geometry: see `Overlay`) are black.
     extra_from: usize,
-    extra: SurfaceMaterial,
 }
 
 impl TrueMaterials {
@@ -158,21 +157,14 @@ impl TrueMaterials {
             parts,
             tri_part,
             extra_from: num_triangles,
-            extra: SurfaceMaterial::BLACK,
         })
-    }
-
-    /// Triangles from `num_triangles` on (geometry appended to the mesh) get `material`.
-    pub fn with_extra(mut self, material: SurfaceMaterial) -> Self {
-        self.extra = material;
-        self
     }
 
     /// The material at one point.
     pub fn at(&self, p: Vec3, tri: u32) -> SurfaceMaterial {
         let t = tri as usize;
         if t >= self.extra_from {
-            return self.extra;
+            return SurfaceMaterial::BLACK;
         }
         let part = &self.parts[self.tri_part[t] as usize];
         SurfaceMaterial {

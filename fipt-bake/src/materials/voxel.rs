@@ -108,6 +108,61 @@ impl<'a> VoxelMaterials<'a> {
         v
     }
 
+    /// Averages `fallback`'s materials over points spread on `mesh`'s surface: per triangle
+    /// (not flagged in `always_forward`) ⌈area · `per_voxel` / voxel face area⌉ uniform points,
+    /// so every voxel a surface crosses gets about `per_voxel` of them; deterministic in
+    /// `seed`. The cheap form of a material field on a scene without training pixels (a
+    /// loaded scene model). Returns the cache and the number of points evaluated.
+    pub fn from_surface(
+        scene_box: SceneBox,
+        res: usize,
+        mesh: &fipt_core::scene::Mesh,
+        fallback: &'a dyn MaterialSource,
+        always_forward: Vec<bool>,
+        per_voxel: f32,
+        seed: u64,
+    ) -> (Self, usize) {
+        let cell = (scene_box.max - scene_box.min) / res.max(1) as f32;
+        let per_area = per_voxel / (cell * cell);
+        let counts: Vec<usize> = (0..mesh.num_triangles())
+            .map(|t| {
+                if always_forward.get(t).copied().unwrap_or(false) {
+                    return 0;
+                }
+                let [a, b, c] = mesh.corners(t);
+                let area = 0.5 * (b - a).cross(c - a).length();
+                ((area * per_area).ceil() as usize).clamp(1, 1 << 20)
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(counts.len() + 1);
+        offsets.push(0usize);
+        for c in &counts {
+            offsets.push(offsets.last().copied().unwrap_or(0) + c);
+        }
+        let total = offsets.last().copied().unwrap_or(0);
+        let (points, tris): (Vec<Vec3>, Vec<u32>) = (0..mesh.num_triangles())
+            .into_par_iter()
+            .flat_map_iter(|t| {
+                let [a, b, c] = mesh.corners(t);
+                let mut rng = fipt_core::rng::Rng::new(seed, t as u64);
+                (0..counts[t]).map(move |_| {
+                    let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+                    if u + v > 1.0 {
+                        (u, v) = (1.0 - u, 1.0 - v);
+                    }
+                    (a + (b - a) * u + (c - a) * v, t as u32)
+                })
+            })
+            .unzip();
+        debug_assert_eq!(points.len(), total);
+        let mut mats = Vec::with_capacity(total);
+        fallback.query(&points, &tris, &mut mats);
+        (
+            Self::build(scene_box, res, &points, &mats, fallback, always_forward),
+            total,
+        )
+    }
+
     /// Voxels holding a cached mean.
     pub fn len(&self) -> usize {
         self.means.len()

@@ -57,6 +57,18 @@ fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
 /// Model files inside a model folder.
 const NETS_FILE: &str = "fields.bpk";
 const GRID_FILE: &str = "hashgrid.bin";
+const GRID_FILE_F16: &str = "hashgrid.f16";
+
+/// How `save` stores the hash table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TableFormat {
+    /// Raw little-endian f32 (`hashgrid.bin`): exact.
+    F32,
+    /// Little-endian IEEE half (`hashgrid.f16`), as tiny-cuda-nn keeps the table on the GPU:
+    /// half the size; the entries are small feature values (|x| ≲ 1), where half's 11-bit
+    /// mantissa leaves a relative error ≤ 2^-11.
+    F16,
+}
 const SPEC_FILE: &str = "model.json";
 
 impl FiptModel {
@@ -141,9 +153,9 @@ impl FiptModel {
     }
 
     /// Saves the model into `dir`: `model.json` (configs and scene box), the networks as a burn
-    /// record (`fields.bpk`) and the hash table as raw little-endian f32 (`hashgrid.bin`), each
+    /// record (`fields.bpk`) and the hash table (`hashgrid.bin` as f32 or `hashgrid.f16`), each
     /// written to a temporary name first.
-    pub fn save(&self, dir: &Path) -> Result<(), String> {
+    pub fn save(&self, dir: &Path, format: TableFormat) -> Result<(), String> {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         let spec = serde_json::to_string_pretty(&self.spec).map_err(|e| e.to_string())?;
         crate::io::write_bytes_atomic(&dir.join(SPEC_FILE), spec.as_bytes())
@@ -154,13 +166,32 @@ impl FiptModel {
             .save_file(&tmp)
             .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
         std::fs::rename(&tmp, dir.join(NETS_FILE)).map_err(|e| e.to_string())?;
-        let bytes: Vec<u8> = self
-            .grid
-            .table
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
-        crate::io::write_bytes_atomic(&dir.join(GRID_FILE), &bytes).map_err(|e| e.to_string())
+        let (name, bytes): (&str, Vec<u8>) = match format {
+            TableFormat::F32 => (
+                GRID_FILE,
+                self.grid
+                    .table
+                    .iter()
+                    .flat_map(|x| x.to_le_bytes())
+                    .collect(),
+            ),
+            TableFormat::F16 => (
+                GRID_FILE_F16,
+                self.grid
+                    .table
+                    .iter()
+                    .flat_map(|&x| half::f16::from_f32(x).to_le_bytes())
+                    .collect(),
+            ),
+        };
+        // Only one table file: a stale one of the other format would be ambiguous.
+        let other = if format == TableFormat::F32 {
+            GRID_FILE_F16
+        } else {
+            GRID_FILE
+        };
+        let _ = std::fs::remove_file(dir.join(other));
+        crate::io::write_bytes_atomic(&dir.join(name), &bytes).map_err(|e| e.to_string())
     }
 
     /// Loads a model saved by `save` onto `device`. Errors name the file and the problem
@@ -180,19 +211,35 @@ impl FiptModel {
             .nets
             .try_load_file(&nets_path)
             .map_err(|e| format!("{}: cannot load the networks: {e:?}", nets_path.display()))?;
-        let grid_path = dir.join(GRID_FILE);
-        let bytes = std::fs::read(&grid_path)
-            .map_err(|e| format!("{}: cannot read: {e}", grid_path.display()))?;
-        let want = model.grid.table.len() * 4;
-        if bytes.len() != want {
+        let (grid_path, width) = if dir.join(GRID_FILE_F16).is_file() {
+            (dir.join(GRID_FILE_F16), 2)
+        } else {
+            (dir.join(GRID_FILE), 4)
+        };
+        let len = std::fs::metadata(&grid_path)
+            .map_err(|e| format!("{}: cannot read: {e}", grid_path.display()))?
+            .len();
+        let want = (model.grid.table.len() * width) as u64;
+        if len != want {
             return Err(format!(
-                "{}: {} bytes, but the grid of model.json needs {want}",
-                grid_path.display(),
-                bytes.len()
+                "{}: {len} bytes, but the grid of model.json needs {want}",
+                grid_path.display()
             ));
         }
-        for (v, b) in model.grid.table.iter_mut().zip(bytes.chunks_exact(4)) {
-            *v = f32::from_le_bytes(b.try_into().expect("4 bytes"));
+        let bytes = std::fs::read(&grid_path)
+            .map_err(|e| format!("{}: cannot read: {e}", grid_path.display()))?;
+        let table = &mut model.grid.table;
+        if width == 2 {
+            for (v, b) in table.iter_mut().zip(bytes.chunks_exact(2)) {
+                *v = half::f16::from_le_bytes([b[0], b[1]]).to_f32();
+            }
+        } else {
+            for (v, b) in table.iter_mut().zip(bytes.chunks_exact(4)) {
+                *v = f32::from_le_bytes(b.try_into().expect("4 bytes"));
+            }
+        }
+        if let Some(i) = table.iter().position(|v| !v.is_finite()) {
+            return Err(format!("{}: entry {i} is not finite", grid_path.display()));
         }
         Ok(model)
     }

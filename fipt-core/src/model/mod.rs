@@ -17,7 +17,7 @@ pub mod step;
 
 pub use backend::BackendKind;
 pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};
-pub use fipt_model::{FiptModel, MaterialValues, ModelSpec, Nets};
+pub use fipt_model::{FiptModel, MaterialValues, ModelSpec, Nets, TableFormat};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use step::{Batch, LossParts, TrainConfig, Trainer};
 

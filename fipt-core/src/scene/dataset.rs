@@ -409,6 +409,17 @@ fn load_maps(
     Ok(maps)
 }
 
+/// One split (`train` or `val`) of a FIPT synthetic scene alone: what rendering a recovered
+/// model needs from a scene folder (cameras and reference images), even when its other split
+/// is absent.
+pub fn load_split(root: &Path, name: &str, opts: &LoadOptions) -> Result<Split> {
+    let t = root.join(name).join("transforms.json");
+    if !t.is_file() {
+        return Err(FileError::new(&t, "file not found (the split's cameras)"));
+    }
+    load_synthetic_split(root, name, opts, None)
+}
+
 fn load_synthetic_split(
     root: &Path,
     name: &str,

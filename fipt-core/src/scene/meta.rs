@@ -88,8 +88,12 @@ impl SceneMeta {
 /// `relight.json`: emitters switched off by part name and new emitters added.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Relight {
+    /// Emitters switched off: emitter parts of `scene_meta.json` by name, or `"all"`.
     #[serde(default)]
     pub emitters_off: Vec<String>,
+    /// Emitters rescaled (radiance × factor), named as in `emitters_off`.
+    #[serde(default)]
+    pub emitters_scale: std::collections::BTreeMap<String, f32>,
     #[serde(default)]
     pub new_emitter: Option<NewEmitter>,
     #[serde(default)]
@@ -117,23 +121,54 @@ pub struct RelightBsdf {
 }
 
 impl Relight {
-    /// Reads and checks `relight.json` against the scene's parts: every switched-off name is an
-    /// emitter part, every new triangle indexes its vertices, radiances are finite and ≥ 0.
-    pub fn load(path: &Path, meta: &SceneMeta) -> Result<Relight> {
+    /// Reads and checks `relight.json`: every switched-off or rescaled name is `"all"` or an
+    /// emitter part of the scene's `meta` (without one, only `"all"`), scale factors are finite
+    /// and ≥ 0, every new triangle indexes its vertices, radiances are finite and ≥ 0.
+    pub fn load(path: &Path, meta: Option<&SceneMeta>) -> Result<Relight> {
         let text = read_text(path)?;
         let r: Relight = serde_json::from_str(&text)
             .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
-        for name in &r.emitters_off {
-            if !meta
-                .parts
-                .iter()
-                .any(|p| &p.name == name && p.emission.is_some())
-            {
-                return Err(FileError::new(
-                    path,
-                    format!("emitters_off: '{name}' is not an emitter part of scene_meta.json"),
-                ));
+        for (key, name) in r
+            .emitters_off
+            .iter()
+            .map(|n| ("emitters_off", n))
+            .chain(r.emitters_scale.keys().map(|n| ("emitters_scale", n)))
+        {
+            if name == "all" {
+                continue;
             }
+            match meta {
+                Some(meta) => {
+                    if !meta
+                        .parts
+                        .iter()
+                        .any(|p| &p.name == name && p.emission.is_some())
+                    {
+                        return Err(FileError::new(
+                            path,
+                            format!("{key}: '{name}' is not an emitter part of scene_meta.json"),
+                        ));
+                    }
+                }
+                None => {
+                    return Err(FileError::new(
+                        path,
+                        format!(
+                            "{key}: '{name}': naming emitters needs the scene's scene_meta.json (give --scene); \"all\" needs none"
+                        ),
+                    ));
+                }
+            }
+        }
+        if let Some((n, f)) = r
+            .emitters_scale
+            .iter()
+            .find(|(_, f)| !f.is_finite() || **f < 0.0)
+        {
+            return Err(FileError::new(
+                path,
+                format!("emitters_scale: '{n}': factor {f} is not finite and ≥ 0"),
+            ));
         }
         for e in r.added() {
             let n = e.vertices.len() as u32;
@@ -156,6 +191,20 @@ impl Relight {
             }
         }
         Ok(r)
+    }
+
+    /// The radiance factor of an emitter on a triangle of part `part` (None: no part known):
+    /// 0 when switched off (by name or `"all"`), else the product of its scale factors.
+    pub fn factor(&self, part: Option<&str>) -> f32 {
+        let named = |n: &String| n == "all" || Some(n.as_str()) == part;
+        if self.emitters_off.iter().any(named) {
+            return 0.0;
+        }
+        self.emitters_scale
+            .iter()
+            .filter(|(n, _)| named(n))
+            .map(|(_, f)| *f)
+            .product()
     }
 
     /// Every added emitter (`new_emitter` and `new_emitters`).

@@ -33,13 +33,13 @@ use fipt_bake::{Accel, ViewHits, emitters};
 use fipt_core::io::peak_rss_mb;
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
 use predict::{ViewMaps, predict_view};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The maps FIPT reads, plus BaseColor and Metallic for the per-part table.
 fn load_opts() -> LoadOptions {
     let mut maps = MapKind::FIPT.to_vec();
-    maps.extend([MapKind::BaseColor, MapKind::Metallic]);
+    maps.extend([MapKind::BaseColor, MapKind::Metallic, MapKind::Relight]);
     LoadOptions { maps, val: true }
 }
 
@@ -99,9 +99,28 @@ fn score_model(
     score(ds, hits, &maps)
 }
 
+/// How `run` runs besides its config.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// No progress bars and no summary.
+    pub quiet: bool,
+    /// Fit the oracle shadings (see `run_with`).
+    pub oracle: bool,
+    /// Register the scene model in this zoo folder, under this name.
+    pub zoo: Option<(PathBuf, String)>,
+}
+
 /// The whole pipeline; returns the report that is also written to `out/metrics.json`.
 pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
-    run_with(scene, out, cfg, quiet, false)
+    run_with(
+        scene,
+        out,
+        cfg,
+        &RunOptions {
+            quiet,
+            ..Default::default()
+        },
+    )
 }
 
 /// Oracle shadings of a scene with ground truth, cached in `out/cache/oracle.bin`.
@@ -184,13 +203,8 @@ pub fn landscapes(
 /// `run`; with `oracle`, round 0 fits the oracle shadings (path-traced with the true materials
 /// and emitters, see `refine::oracle`) instead of the baked ones and no refinement follows: the
 /// ceiling of the factorised model.
-pub fn run_with(
-    scene: &Path,
-    out: &Path,
-    cfg: &Config,
-    quiet: bool,
-    oracle: bool,
-) -> Result<RunReport> {
+pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Result<RunReport> {
+    let (quiet, oracle) = (opts.quiet, opts.oracle);
     let mut times = StageTimes::default();
     let mut t = Instant::now();
     let ds = Dataset::load(scene, &load_opts())?;
@@ -317,9 +331,6 @@ pub fn run_with(
         times.train_s += train_s;
     }
     drop(store);
-    tr.model
-        .save(&out.join("model"))
-        .map_err(anyhow::Error::msg)?;
 
     // (5) Predict the maps of every view and score them.
     let mut train_maps_final = Vec::new();
@@ -359,7 +370,24 @@ pub fn run_with(
         train_s,
     ));
     write_comparisons(&ds, &metrics, &train_maps_final, out)?;
-    let report = RunReport {
+
+    // (6) Re-render the val views: view synthesis and relighting, scored against the photos.
+    let recovered = crate::render::Recovered {
+        model: &tr.model,
+        mesh: &ds.mesh,
+        emitters: &em,
+        light_field: &baked.light_field,
+    };
+    let renders = if cfg.render.val {
+        render_val(scene, out, &ds, &recovered, cfg, quiet)?
+    } else {
+        None
+    };
+    times.render_s = lap(&mut t);
+    let scored = |v: &[crate::render::ViewRender]| {
+        crate::render::mean(&v.iter().filter_map(|r| r.psnr_db).collect::<Vec<_>>())
+    };
+    let mut report = RunReport {
         scene: scene.display().to_string(),
         seg_loss: mode,
         bake_from_cache: cached,
@@ -376,12 +404,182 @@ pub fn run_with(
         step_profile: tr.profile,
         time_s: times,
         peak_rss_mb: peak_rss_mb(),
+        view_psnr: renders.as_ref().and_then(|r| scored(&r.view)),
+        relight_psnr: renders.as_ref().and_then(|r| scored(&r.relight)),
+        renders,
+        model_dir: None,
+        zoo_entry: None,
     };
+
+    // The scene model: everything recovered, in one folder that renders without the photos.
+    let model_dir = out.join("model");
+    let m = &report.metrics;
+    let name = opts
+        .zoo
+        .as_ref()
+        .map_or_else(|| default_model_name(scene, cfg.seed), |(_, n)| n.clone());
+    report.model_dir = Some(model_dir.display().to_string());
+    if let Some((zoo, _)) = &opts.zoo {
+        report.zoo_entry = Some(zoo.join(&name).display().to_string());
+    }
+    crate::scene_model::save(
+        &model_dir,
+        &tr.model,
+        &ds.mesh,
+        &em,
+        &baked.light_field,
+        &crate::scene_model::SaveInfo {
+            name: &name,
+            scene,
+            image_size: [ds.train.width, ds.train.height],
+            seed: cfg.seed,
+            metrics: crate::scene_model::Headline {
+                kd_psnr: m.kd_psnr,
+                albedo_psnr: m.albedo_psnr,
+                roughness_psnr: m.roughness_psnr,
+                emission_iou: m.emission_iou,
+                view_psnr: report.view_psnr,
+                relight_psnr: report.relight_psnr,
+            },
+            config: &serde_json::to_value(cfg)?,
+            run_metrics: &serde_json::to_value(&report)?,
+        },
+    )?;
     write_json(&out.join("metrics.json"), &report)?;
+    if let Some((zoo, name)) = &opts.zoo {
+        crate::zoo::Zoo::new(zoo).register(&model_dir, name)?;
+    }
     if !quiet {
         report.print(out);
     }
     Ok(report)
+}
+
+/// The default name of a scene's model: the scene folder's name and the seed.
+pub fn default_model_name(scene: &Path, seed: u64) -> String {
+    let base: String = std::path::absolute(scene)
+        .ok()
+        .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .unwrap_or_else(|| "scene".into())
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    format!("{}-s{seed}", base.trim_start_matches('.'))
+}
+
+/// View synthesis of the val views against `val/Image` and, where the scene has
+/// `relight.json` and `val/Relight`, relighting against them (None without val views).
+fn render_val(
+    scene: &Path,
+    out: &Path,
+    ds: &Dataset,
+    rec: &crate::render::Recovered,
+    cfg: &Config,
+    quiet: bool,
+) -> Result<Option<crate::report::ValRenders>> {
+    let Some(val) = &ds.val else {
+        return Ok(None);
+    };
+    let rc = &cfg.render;
+    let path = fipt_bake::integrators::path::PathConfig {
+        spp: rc.spp,
+        max_depth: rc.max_depth,
+        seed: cfg.seed,
+        ..Default::default()
+    };
+    let opts = crate::render::RecoveredOptions {
+        selection: fipt_bake::emitters::LightSelection::Power,
+        cache: rc.cache,
+        material_cache: rc.material_cache,
+        off_reflect: rc.off_reflect,
+    };
+    let dir = out.join("render").join("val");
+    let cams: Vec<crate::render::CamRef> = val
+        .views
+        .iter()
+        .enumerate()
+        .map(|(k, v)| (k, v.camera.clone(), Some(&v.image)))
+        .collect();
+    let picked: Vec<&crate::render::CamRef> = cams.iter().collect();
+    let none = crate::render::Edits::default();
+    let view = crate::render::render_recovered(
+        rec,
+        &none,
+        &picked,
+        &path,
+        &opts,
+        &dir.join("Image"),
+        quiet,
+    )?
+    .views;
+    let relight_path = scene.join("relight.json");
+    let relight = if relight_path.is_file() && val.has_map(MapKind::Relight) {
+        let r = fipt_core::scene::meta::Relight::load(&relight_path, ds.meta.as_ref())?;
+        let cams: Vec<crate::render::CamRef> = val
+            .views
+            .iter()
+            .enumerate()
+            .map(|(k, v)| (k, v.camera.clone(), v.map(MapKind::Relight)))
+            .collect();
+        let picked: Vec<&crate::render::CamRef> = cams.iter().collect();
+        let edits = crate::render::Edits {
+            relight: Some(&r),
+            meta: ds.meta.as_ref(),
+            inserted: &[],
+        };
+        let path = fipt_bake::integrators::path::PathConfig {
+            spp: rc.relight_spp,
+            ..path
+        };
+        crate::render::render_recovered(
+            rec,
+            &edits,
+            &picked,
+            &path,
+            &opts,
+            &dir.join("Relight"),
+            quiet,
+        )?
+        .views
+    } else {
+        Vec::new()
+    };
+    // The contact sheet: per val view, photo | re-render | relit photo | relit re-render.
+    let read = |folder: &str, k: usize| {
+        fipt_core::scene::Image::read_exr(&dir.join(folder).join(format!("{k:03}_0001.exr")))
+            .ok()
+            .map(|i| i.data)
+    };
+    let tiles: Vec<[Option<Vec<f32>>; 2]> = (0..val.views.len())
+        .map(|k| [read("Image", k), read("Relight", k)])
+        .collect();
+    let rows: Vec<Vec<Option<&[f32]>>> = val
+        .views
+        .iter()
+        .zip(&tiles)
+        .map(|(v, [img, relit])| {
+            vec![
+                Some(v.image.data.as_slice()),
+                img.as_deref(),
+                v.map(MapKind::Relight).map(|r| r.data.as_slice()),
+                relit.as_deref(),
+            ]
+        })
+        .collect();
+    crate::output::write_sheet(&dir.join("sheet.png"), val.width, val.height, &rows)?;
+    Ok(Some(crate::report::ValRenders {
+        spp: rc.spp,
+        relight_spp: rc.relight_spp,
+        cache: rc.cache,
+        view,
+        relight,
+    }))
 }
 
 /// Ground truth vs estimate of the worst and the best train view by k_d PSNR
@@ -407,6 +605,44 @@ fn write_comparisons(ds: &Dataset, metrics: &Metrics, maps: &[ViewMaps], out: &P
         )?;
     }
     Ok(())
+}
+
+/// Scores a scene model (`scene_model`) against a scene's ground truth: its train maps
+/// predicted afresh (as `run` does, with the model's own config) into `out/eval.json`. What
+/// `run` scored from its in-memory model, from the saved model instead.
+pub fn eval_model(scene: &Path, model_dir: &Path, out: &Path) -> Result<EvalReport> {
+    let device = burn::tensor::Device::flex();
+    let sm = crate::scene_model::SceneModel::load(model_dir, &device)?;
+    let cfg_path = model_dir.join("config.json");
+    let cfg = Config::load(&cfg_path)?;
+    let ds = Dataset::load(scene, &load_opts())?;
+    if format!("{:016x}", crate::scene_model::mesh_hash(&ds.mesh)) != sm.manifest.mesh_hash {
+        anyhow::bail!(
+            "{}: the scene's mesh differs from the model's ({})",
+            scene.display(),
+            model_dir.display()
+        );
+    }
+    let accel = Accel::build(&ds.mesh);
+    let hits = bake::cast_split(&accel, &ds.mesh, &ds.train);
+    let emission = emitters::radiance_per_triangle(ds.mesh.num_triangles(), &sm.emitters);
+    let maps: Vec<ViewMaps> = hits
+        .iter()
+        .enumerate()
+        .map(|(k, h)| {
+            predict_view(
+                &sm.model,
+                h,
+                &emission,
+                cfg.maps.albedo_samples,
+                cfg.seed ^ k as u64,
+            )
+        })
+        .collect();
+    let (metrics, parts) = score(&ds, &hits, &maps);
+    let r = EvalReport { metrics, parts };
+    write_json(&out.join("eval.json"), &r)?;
+    Ok(r)
 }
 
 /// Recomputes the metrics from `out/maps/train` (written by `run`) into `out/eval.json`.

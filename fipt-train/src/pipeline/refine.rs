@@ -155,6 +155,7 @@ pub fn refine_with(
     show_progress: bool,
 ) -> (Vec<Vec<f32>>, PathStats) {
     let scene = PathScene {
+        secondary_materials: None,
         accel,
         materials,
         emitters: lights,
