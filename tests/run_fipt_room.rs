@@ -9,8 +9,7 @@
 //! emitters; and a rerun with the same seed gives the same round-0 metrics to 1e-4.
 
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
-use fipt_train::pipeline::evaluate::{score_view, summarize};
-use fipt_train::pipeline::predict::ViewMaps;
+use fipt_train::pipeline::evaluate::constant_predictor;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -57,13 +56,7 @@ fn cli(args: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// PSNR of clip(x, 0, 1)^(1/2.2) between two RGB buffers (the scorer's).
-fn psnr_gamma(a: &[f32], b: &[f32]) -> f64 {
-    fipt_train::metrics::psnr_gamma(a, b, |_| true).expect("pixels")
-}
-
-/// The trivial predictors of the val re-renders: for view synthesis, each val photo's own
-/// mean colour as a constant image; for relighting, the photo under the old lights.
+/// The trivial predictors of the val re-renders (`render::trivial_render_scores`).
 fn trivial_render_scores() -> (f64, f64) {
     let ds = Dataset::load(
         &scene_dir(),
@@ -73,20 +66,8 @@ fn trivial_render_scores() -> (f64, f64) {
         },
     )
     .unwrap();
-    let val = ds.val.as_ref().expect("val views");
-    let (mut view, mut relight) = (0.0, 0.0);
-    for v in &val.views {
-        let img = &v.image.data;
-        let n = img.len() / 3;
-        let mean: Vec<f32> = (0..3)
-            .map(|c| (0..n).map(|p| img[3 * p + c]).sum::<f32>() / n as f32)
-            .collect();
-        let constant: Vec<f32> = (0..img.len()).map(|i| mean[i % 3]).collect();
-        view += psnr_gamma(&constant, img);
-        relight += psnr_gamma(img, &v.map(MapKind::Relight).expect("Relight").data);
-    }
-    let k = val.views.len() as f64;
-    (view / k, relight / k)
+    let (v, r) = fipt_train::render::trivial_render_scores(&ds.val.as_ref().unwrap().views);
+    (v.unwrap(), r.unwrap())
 }
 
 fn em_count(p: &Path) -> Option<u64> {
@@ -512,64 +493,14 @@ fn constant_predictor_scores() -> ([f64; 3], f32) {
         val: false,
     };
     let ds = Dataset::load(&scene_dir(), &opts).unwrap();
-    // Sums over the masked pixels of every view: k_d (3), a′ (3), σ (1) and their counts.
-    let (mut kd, mut al, mut sg) = ([0f64; 3], [0f64; 3], 0f64);
-    let (mut n_kd, mut n_rest) = (0usize, 0usize);
-    for v in &ds.train.views {
-        let (e, r) = (
-            v.map(MapKind::Emit).unwrap(),
-            v.map(MapKind::Roughness).unwrap(),
-        );
-        let (d, a) = (
-            v.map(MapKind::DiffCol).unwrap(),
-            v.map(MapKind::Albedo).unwrap(),
-        );
-        for p in 0..v.image.num_pixels() {
-            if e.rgb(p).iter().sum::<f32>() > 0.0 {
-                continue;
-            }
-            n_rest += 1;
-            sg += r.scalar(p).clamp(0.2, 1.0) as f64;
-            for (sum, v) in al.iter_mut().zip(a.rgb(p)) {
-                *sum += v.clamp(0.0, 1.0) as f64;
-            }
-            if r.scalar(p) >= 0.6 {
-                n_kd += 1;
-                for (sum, v) in kd.iter_mut().zip(d.rgb(p)) {
-                    *sum += v.clamp(0.0, 1.0) as f64;
-                }
-            }
-        }
-    }
-    let kd = kd.map(|x| (x / n_kd as f64) as f32);
-    let al = al.map(|x| (x / n_rest as f64) as f32);
-    let sg = (sg / n_rest as f64) as f32;
-    let scores = ds
-        .train
-        .views
-        .iter()
-        .map(|v| {
-            let n = v.image.num_pixels();
-            let maps = ViewMaps {
-                width: v.image.width,
-                height: v.image.height,
-                kd: kd.repeat(n),
-                sigma: vec![sg; n],
-                metallic: vec![0.0; n],
-                base: kd.repeat(n),
-                albedo: al.repeat(n),
-                emit: vec![0.0; 3 * n],
-            };
-            score_view(v, &maps)
-        })
-        .collect();
-    let m = summarize(scores);
+    let c = constant_predictor(&ds.train.views).expect("ground truth");
+    let m = &c.metrics;
     (
         [
             m.kd_psnr.unwrap(),
             m.albedo_psnr.unwrap(),
             m.roughness_psnr.unwrap(),
         ],
-        sg,
+        c.sigma,
     )
 }

@@ -694,6 +694,14 @@ pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Resu
         std::hint::black_box(sm.model.grid.encode(&x_unit));
     });
     let cached = time(&mut || voxels.query(&pts, &tris, &mut out));
+    let mut probe = Vec::new();
+    let missed = {
+        // Forwarded points answer exactly; a cached answer differs from the exact one.
+        let mut exact = Vec::new();
+        learned.query(&pts, &tris, &mut exact);
+        voxels.query(&pts, &tris, &mut probe);
+        probe.iter().zip(&exact).filter(|(a, b)| a == b).count()
+    };
     let j = serde_json::json!({
         "bench": "query",
         "model": model_dir.display().to_string(),
@@ -704,6 +712,7 @@ pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Resu
         "encode_share": encode / exact,
         "cached_points_per_s": batch as f64 / cached,
         "cache_voxels": voxels.len(),
+        "cache_miss_share": missed as f64 / batch as f64,
         "cache_points_evaluated": evaluated,
         "cache_build_s": build_s,
     });
@@ -711,10 +720,11 @@ pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Resu
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
         println!(
-            "exact field: {:.2} M points/s (encoding {:.0} % of it); voxel cache: {:.1} M points/s ({} voxels from {} points in {:.2} s)",
+            "exact field: {:.2} M points/s (encoding {:.0} % of it); voxel cache: {:.1} M points/s ({:.1} % forwarded; {} voxels from {} points in {:.2} s)",
             batch as f64 / exact / 1e6,
             100.0 * encode / exact,
             batch as f64 / cached / 1e6,
+            100.0 * missed as f64 / batch as f64,
             voxels.len(),
             evaluated,
             build_s

@@ -262,6 +262,9 @@ pub struct RenderSection {
     /// Relighting: switched-off emitters reflect with the learned field (a departure from the
     /// reference, which makes them black; see `render::RecoveredOptions::off_reflect`).
     pub off_reflect: bool,
+    /// Fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so camera hits
+    /// repeat and the exact field is queried once per position (`PathConfig::pixel_positions`).
+    pub pixel_positions: usize,
 }
 
 impl Default for RenderSection {
@@ -274,6 +277,7 @@ impl Default for RenderSection {
             cache: true,
             material_cache: true,
             off_reflect: true,
+            pixel_positions: 16,
         }
     }
 }
@@ -310,6 +314,11 @@ impl Config {
             (1..=1 << 16).contains(&r.spp) && (1..=1 << 16).contains(&r.relight_spp),
             "render.spp",
             "sample counts must be in [1, 65536]",
+        )?;
+        check(
+            r.pixel_positions.isqrt().pow(2) == r.pixel_positions && r.pixel_positions <= 4096,
+            "render.pixel_positions",
+            "must be a square (0, 1, 4, 9, 16, ...) up to 4096",
         )?;
         check(
             (1..=64).contains(&r.max_depth),

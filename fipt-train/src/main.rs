@@ -153,6 +153,10 @@ enum Cmd {
         /// with the learned field.
         #[arg(long)]
         off_black: bool,
+        /// Models: fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so
+        /// the exact field is queried once per position, not per sample.
+        #[arg(long, default_value_t = 16)]
+        pixel_positions: usize,
         /// Which cameras: train or val.
         #[arg(long, default_value = "val")]
         split: String,
@@ -439,6 +443,7 @@ fn main() {
             no_cache,
             exact_materials,
             off_black,
+            pixel_positions,
             split,
             views,
             cameras,
@@ -477,10 +482,15 @@ fn main() {
                     rr_depth,
                     lobe,
                     seed,
+                    pixel_positions,
                     ..Default::default()
                 },
                 quiet: json,
             };
+            if pixel_positions.isqrt().pow(2) != pixel_positions {
+                eprintln!("error: --pixel-positions {pixel_positions}: must be a square (0, 1, 4, 9, 16, ...)");
+                std::process::exit(1);
+            }
             fipt_train::render::render(&job).and_then(|r| {
                 if json {
                     println!("{}", serde_json::to_string_pretty(&r)?);

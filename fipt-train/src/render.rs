@@ -25,7 +25,7 @@ use fipt_bake::Accel;
 use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathConfig, PathScene, PathStats, RadianceCache};
 use fipt_bake::lightfield::LightField;
-use fipt_bake::materials::{MaterialSource, Overlay, SurfaceMaterial, TrueMaterials};
+use fipt_bake::materials::{MaterialSource, Memo, Overlay, SurfaceMaterial, TrueMaterials};
 use fipt_core::model::FiptModel;
 use fipt_core::scene::dataset::load_cameras;
 use fipt_core::scene::insert::{Inserted, load_insert};
@@ -214,6 +214,7 @@ fn render_cams(
     scene: &PathScene,
     cams: &[&CamRef],
     cfg: &PathConfig,
+    memo: Option<&Memo>,
     dir: &Path,
     quiet: bool,
 ) -> Result<(Vec<ViewRender>, PathStats)> {
@@ -227,6 +228,9 @@ fn render_cams(
             scene.render_view(camera, cfg, k as u64, &|n| pb.set_position(base + n as u64));
         let seconds = t.elapsed().as_secs_f64();
         stats.add(&st);
+        if let Some(m) = memo {
+            m.clear();
+        }
         let (w, h) = (camera.width, camera.height);
         let img = Image::from_data(w, h, 3, rgb);
         img.write_exr(&dir.join(format!("{k:03}_0001.exr")))?;
@@ -355,6 +359,12 @@ pub fn render_recovered(
         )
         .0
     });
+    // Camera hits repeat with fixed pixel positions: a memo answers the repeats.
+    let memo = (cfg.pixel_positions > 0).then(|| Memo::new(&materials));
+    let first: &dyn MaterialSource = match &memo {
+        Some(m) => m,
+        None => &materials,
+    };
     let scene = PathScene {
         secondary_materials: voxels.as_ref().map(|v| v as &dyn MaterialSource),
         cache: cache.then_some(RadianceCache {
@@ -362,12 +372,12 @@ pub fn render_recovered(
             min_roughness: CACHE_ROUGHNESS,
         }),
         accel: &accel,
-        materials: &materials as &dyn MaterialSource,
+        materials: first,
         emitters: &lights,
     };
     let mut cfg = cfg.clone();
     cfg.emitters_reflect = false;
-    let (views, stats) = render_cams(&scene, cams, &cfg, dir, quiet)?;
+    let (views, stats) = render_cams(&scene, cams, &cfg, memo.as_ref(), dir, quiet)?;
     Ok(Rendered {
         views,
         stats,
@@ -420,7 +430,9 @@ fn render_truth(
         materials: &materials as &dyn MaterialSource,
         emitters: &lights,
     };
-    let (views, stats) = render_cams(&scene, cams, cfg, dir, quiet)?;
+    let mut cfg = cfg.clone();
+    cfg.pixel_positions = 0;
+    let (views, stats) = render_cams(&scene, cams, &cfg, None, dir, quiet)?;
     Ok(Rendered {
         views,
         stats,
@@ -660,6 +672,26 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     };
     write_json(&job.out.join("render.json"), &report)?;
     Ok(report)
+}
+
+/// The trivial predictors of re-rendered views, scored as the renders are: for view synthesis
+/// each photo's own mean colour as a constant image; for relighting the photo under the old
+/// lights (None where the views have no `Relight` map).
+pub fn trivial_render_scores(views: &[fipt_core::scene::View]) -> (Option<f64>, Option<f64>) {
+    let (mut view, mut relight) = (Vec::new(), Vec::new());
+    for v in views {
+        let img = &v.image.data;
+        let n = (img.len() / 3).max(1);
+        let mean: Vec<f32> = (0..3)
+            .map(|c| img.iter().skip(c).step_by(3).sum::<f32>() / n as f32)
+            .collect();
+        let constant: Vec<f32> = (0..img.len()).map(|i| mean[i % 3]).collect();
+        view.extend(psnr_gamma(&constant, img, |_| true));
+        if let Some(r) = v.map(MapKind::Relight) {
+            relight.extend(psnr_gamma(img, &r.data, |_| true));
+        }
+    }
+    (mean(&view), mean(&relight))
 }
 
 /// Mean of a list (None when empty).

@@ -90,6 +90,7 @@ impl RefineConfig {
             lobe: self.lobe,
             wave: self.wave,
             seed: self.seed,
+            pixel_positions: 0,
         }
     }
 }

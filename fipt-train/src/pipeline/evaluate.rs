@@ -195,6 +195,72 @@ pub fn part_table(
     rows
 }
 
+/// The best constant predictor of a split's maps: k_d, a′ and σ each set to the mean of the
+/// (clamped) ground truth over the pixels its metric scores, no emission; and its scores by
+/// this scorer: the scale every estimate is read against. None without the GT maps.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ConstantPredictor {
+    pub kd: [f32; 3],
+    pub albedo: [f32; 3],
+    pub sigma: f32,
+    pub metrics: Metrics,
+}
+
+pub fn constant_predictor(views: &[View]) -> Option<ConstantPredictor> {
+    // Sums over the masked pixels of every view: k_d (3), a′ (3), σ (1) and their counts.
+    let (mut kd, mut al, mut sg) = ([0f64; 3], [0f64; 3], 0f64);
+    let (mut n_kd, mut n_rest) = (0usize, 0usize);
+    for v in views {
+        let (e, r) = (v.map(MapKind::Emit)?, v.map(MapKind::Roughness)?);
+        let (d, a) = (v.map(MapKind::DiffCol)?, v.map(MapKind::Albedo)?);
+        for p in 0..v.image.num_pixels() {
+            if e.rgb(p).iter().sum::<f32>() > 0.0 {
+                continue;
+            }
+            n_rest += 1;
+            sg += r.scalar(p).clamp(0.2, 1.0) as f64;
+            for (sum, v) in al.iter_mut().zip(a.rgb(p)) {
+                *sum += v.clamp(0.0, 1.0) as f64;
+            }
+            if r.scalar(p) >= 0.6 {
+                n_kd += 1;
+                for (sum, v) in kd.iter_mut().zip(d.rgb(p)) {
+                    *sum += v.clamp(0.0, 1.0) as f64;
+                }
+            }
+        }
+    }
+    if n_kd == 0 || n_rest == 0 {
+        return None;
+    }
+    let kd = kd.map(|x| (x / n_kd as f64) as f32);
+    let albedo = al.map(|x| (x / n_rest as f64) as f32);
+    let sigma = (sg / n_rest as f64) as f32;
+    let scores = views
+        .iter()
+        .map(|v| {
+            let n = v.image.num_pixels();
+            let maps = ViewMaps {
+                width: v.image.width,
+                height: v.image.height,
+                kd: kd.repeat(n),
+                sigma: vec![sigma; n],
+                metallic: vec![0.0; n],
+                base: kd.repeat(n),
+                albedo: albedo.repeat(n),
+                emit: vec![0.0; 3 * n],
+            };
+            score_view(v, &maps)
+        })
+        .collect();
+    Some(ConstantPredictor {
+        kd,
+        albedo,
+        sigma,
+        metrics: summarize(scores),
+    })
+}
+
 /// A ground-truth-vs-estimate figure of one view (linear values, for `write_png`): top row the
 /// photo and the true k_d, a′, σ and emission; bottom row 4×|k_d error| and the estimates.
 /// Missing ground-truth maps are black. Returns (width, height, RGB).

@@ -491,6 +491,7 @@ fn render_val(
         spp: rc.spp,
         max_depth: rc.max_depth,
         seed: cfg.seed,
+        pixel_positions: rc.pixel_positions,
         ..Default::default()
     };
     let opts = crate::render::RecoveredOptions {
