@@ -246,6 +246,48 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         }
     }
 
+    // The HTML report: every image it shows exists and is a PNG, every figure in its tables
+    // is finite, and it has every section of a scene with ground truth.
+    let page = std::fs::read_to_string(base.join("a/report.html")).unwrap();
+    let mut images = 0;
+    for part in page.split("src=\"").skip(1) {
+        let src = &part[..part.find('"').unwrap()];
+        let bytes =
+            std::fs::read(base.join("a").join(src)).unwrap_or_else(|_| panic!("{src} missing"));
+        assert!(bytes.starts_with(b"\x89PNG"), "{src} is not a PNG");
+        images += 1;
+    }
+    assert!(images >= 3 * 14 + 1, "{images} images");
+    let mut cells = 0;
+    for part in page.split("<td>").skip(1) {
+        let cell = &part[..part.find("</td>").unwrap()];
+        assert!(
+            !cell.contains("NaN") && !cell.contains("inf") && !cell.contains("not finite"),
+            "cell {cell}"
+        );
+        for tok in cell.split([',', ' ', '(', ')']) {
+            if let Ok(x) = tok.parse::<f64>() {
+                assert!(x.is_finite());
+                cells += 1;
+            }
+        }
+    }
+    assert!(cells > 100, "{cells} numbers");
+    for section in [
+        "Metrics",
+        "Time and memory",
+        "Views",
+        "Parts",
+        "Emitters",
+        "Loss",
+        "Re-renders",
+    ] {
+        assert!(
+            page.contains(&format!("<h2>{section}</h2>")),
+            "no {section} section"
+        );
+    }
+
     // The scene model: in OUT/model and in the zoo, listed with its metrics.
     let zoo_s = zoo.to_str().unwrap();
     let (ok, out, err) = cli(&["zoo", "list", "--json", "--zoo", zoo_s]);

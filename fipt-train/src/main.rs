@@ -198,6 +198,13 @@ enum Cmd {
         #[command(subcommand)]
         what: ZooCmd,
     },
+    /// (Re)builds the HTML report (OUT/report.html) of a finished run.
+    Report {
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Print the default configuration (`configs/default.json`) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
@@ -409,6 +416,9 @@ fn main() {
                     println!("imported {} as {}", dir.display(), to.display());
                 }),
             }
+        }
+        Cmd::Report { scene, out } => {
+            fipt_train::html_report::write(&scene, &out).map(|p| println!("report: {}", p.display()))
         }
         Cmd::Eval {
             scene,

@@ -130,6 +130,18 @@ pub struct RoundReport {
     /// Its path counters (None for round 0 or when the shadings came from the cache).
     pub refine_paths: Option<PathStats>,
     pub train_s: f64,
+    /// The fit's loss (every step's total), averaged into at most 200 bins: (step, loss).
+    #[serde(default)]
+    pub loss_curve: Vec<(u64, f32)>,
+}
+
+/// `v` averaged into at most `bins` consecutive bins: (first index of the bin, mean).
+pub fn binned(v: &[f32], bins: usize) -> Vec<(u64, f32)> {
+    let per = v.len().div_ceil(bins.max(1)).max(1);
+    v.chunks(per)
+        .enumerate()
+        .map(|(i, c)| ((i * per) as u64, c.iter().sum::<f32>() / c.len() as f32))
+        .collect()
 }
 
 impl RoundReport {
@@ -158,6 +170,7 @@ impl RoundReport {
             refine_s,
             refine_paths,
             train_s,
+            loss_curve: binned(&log.step_total, 200),
         }
     }
 }

@@ -449,8 +449,10 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
     if let Some((zoo, name)) = &opts.zoo {
         crate::zoo::Zoo::new(zoo).register(&model_dir, name)?;
     }
+    let page = crate::html_report::write(scene, out)?;
     if !quiet {
         report.print(out);
+        println!("report: {}", page.display());
     }
     Ok(report)
 }
