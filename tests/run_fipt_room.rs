@@ -257,7 +257,8 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         assert!(bytes.starts_with(b"\x89PNG"), "{src} is not a PNG");
         images += 1;
     }
-    assert!(images >= 3 * 14 + 1, "{images} images");
+    // Three views × (photo, re-render, and truth, estimate, error of 5 maps), and the sheet.
+    assert_eq!(images, 3 * 17 + 1, "images in the report");
     let mut cells = 0;
     for part in page.split("<td>").skip(1) {
         let cell = &part[..part.find("</td>").unwrap()];

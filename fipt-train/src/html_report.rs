@@ -372,26 +372,41 @@ fn emitters(h: &mut String, out: &Path, ds: &Dataset) -> Result<()> {
                 .map(|p| (p.name.clone(), p.emission.as_ref().map(|e| e.radiance)))
         })
     };
-    let mut groups: Vec<(String, Option<[f32; 3]>, usize, f32, [f32; 3])> = Vec::new();
+    /// Emitters on one part (or of one radiance): count, area, area-weighted radiance sum.
+    struct Group {
+        name: String,
+        truth: Option<[f32; 3]>,
+        count: usize,
+        area: f32,
+        weighted: [f32; 3],
+    }
+    let mut groups: Vec<Group> = Vec::new();
     for e in &f.emitters {
         let (name, truth) = part_of(e.triangle).unwrap_or_else(|| {
+            let r = e.radiance;
             (
-                format!(
-                    "radiance {:.2}, {:.2}, {:.2}",
-                    e.radiance[0], e.radiance[1], e.radiance[2]
-                ),
+                format!("radiance {:.2}, {:.2}, {:.2}", r[0], r[1], r[2]),
                 None,
             )
         });
-        match groups.iter_mut().find(|g| g.0 == name) {
-            Some(g) => {
-                g.2 += 1;
-                g.3 += e.area;
-                for c in 0..3 {
-                    g.4[c] += e.radiance[c] * e.area;
-                }
+        let i = match groups.iter().position(|g| g.name == name) {
+            Some(i) => i,
+            None => {
+                groups.push(Group {
+                    name,
+                    truth,
+                    count: 0,
+                    area: 0.0,
+                    weighted: [0.0; 3],
+                });
+                groups.len() - 1
             }
-            None => groups.push((name, truth, 1, e.area, e.radiance.map(|x| x * e.area))),
+        };
+        let g = &mut groups[i];
+        g.count += 1;
+        g.area += e.area;
+        for c in 0..3 {
+            g.weighted[c] += e.radiance[c] * e.area;
         }
     }
     let _ = write!(
@@ -399,8 +414,9 @@ fn emitters(h: &mut String, out: &Path, ds: &Dataset) -> Result<()> {
         "<h2>Emitters</h2><p>{} emitting triangles extracted.</p><table><tr><th>on part</th><th>triangles</th><th>area (m²)</th><th>mean radiance</th><th>true radiance</th></tr>",
         f.emitters.len()
     );
-    for (name, truth, n, area, sum) in groups {
-        let r = sum.map(|x| x / area.max(1e-12));
+    for g in groups {
+        let (name, truth, n, area) = (g.name, g.truth, g.count, g.area);
+        let r = g.weighted.map(|x| x / area.max(1e-12));
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{n}</td><td>{:.4}</td><td>{:.2}, {:.2}, {:.2}</td><td>{}</td></tr>",
