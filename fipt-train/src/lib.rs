@@ -8,6 +8,7 @@ pub mod bench;
 pub mod cache;
 pub mod check;
 pub mod config;
+pub mod demo;
 pub mod html_report;
 pub mod learned;
 pub mod metrics;

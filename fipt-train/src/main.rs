@@ -16,8 +16,9 @@ use std::path::PathBuf;
     about = "Factorized Inverse Path Tracing in Rust"
 )]
 struct Cli {
+    /// What to do (none: the built-in demo, as `fipt-train demo`).
     #[command(subcommand)]
-    cmd: Cmd,
+    cmd: Option<Cmd>,
 }
 
 /// The scene, output folder, config and seed of a pipeline job (`bake`, `run`).
@@ -51,6 +52,16 @@ impl JobArgs {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// The built-in demo: renders a room the project describes itself (cached), runs the whole
+    /// method on it and writes the report. No files from outside the repository.
+    Demo {
+        /// Output folder (the scene in OUT/scene, the run in OUT/run, the zoo in OUT/zoo).
+        #[arg(long, default_value = "demo")]
+        out: PathBuf,
+        /// No progress bars and no summary.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Dataset doctor: load a scene, cast every pixel-centre ray and report what is wrong.
     Check {
         #[arg(long)]
@@ -318,7 +329,14 @@ enum BenchCmd {
 
 fn main() {
     let cli = Cli::parse();
-    let res = match cli.cmd {
+    let cmd = cli.cmd.unwrap_or(Cmd::Demo {
+        out: PathBuf::from("demo"),
+        quiet: false,
+    });
+    let res = match cmd {
+        Cmd::Demo { out, quiet } => fipt_train::demo::demo(&out, quiet).map(|p| {
+            println!("report: {}", p.display());
+        }),
         Cmd::Check { scene, json } => check::run(&scene, json),
         Cmd::Bake { job, json } => job.config().and_then(|cfg| {
             let r = pipeline::bake_job::bake_job(&job.scene, &job.out, &cfg, json)?;

@@ -386,9 +386,9 @@ pub fn render_recovered(
     })
 }
 
-/// Renders the true scene of `meta` with `edits`.
+/// Renders the true scene of `meta` with `edits` from `cams` into `dir`.
 #[allow(clippy::too_many_arguments)]
-fn render_truth(
+pub fn render_truth(
     scene_dir: &Path,
     mesh: &Mesh,
     meta: &SceneMeta,

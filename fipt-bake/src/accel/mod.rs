@@ -115,7 +115,9 @@ impl Accel {
     /// Closest hit along `o + t·d`, t ∈ (tmin, tmax). `d` should be unit length.
     #[inline]
     pub fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
-        let (o, d) = (Vec3A::from(o), Vec3A::from(d));
+        // -0.0 components become +0.0: obvhs's traversal misses every hit of a ray with a
+        // negative-zero component (found by the demo room's axis-aligned probes).
+        let (o, d) = (Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO);
         let ray = Ray::new(o, d, tmin, tmax);
         let mut hit = RayHit::none();
         let tris = &self.leaf_tris;
@@ -134,7 +136,7 @@ impl Accel {
     /// True when anything lies along `o + t·d`, t ∈ (tmin, tmax).
     #[inline]
     pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
-        let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), tmin, tmax);
+        let ray = Ray::new(Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO, tmin, tmax);
         let tris = &self.leaf_tris;
         !self.bvh.ray_traverse_miss(ray, |r, id| {
             tris[id].intersect(r.origin, r.direction, r.tmin, r.tmax)
@@ -147,6 +149,19 @@ mod tests {
     use super::*;
     use fipt_core::rng::Rng;
     use fipt_core::scene::procedural::room;
+
+    /// Axis-aligned rays hit the closed room in all six directions, with negative-zero
+    /// components too (`-Vec3::X` is (-1, -0, -0), which obvhs alone misses).
+    #[test]
+    fn axis_rays_with_negative_zero_hit() {
+        let r = room(Vec3::new(4.0, 2.6, 3.2), 1);
+        let accel = Accel::build(&r.mesh);
+        let o = Vec3::new(1.03, 1.31, 0.57);
+        for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
+            assert!(accel.closest(o, d, 0.0, f32::INFINITY).is_some(), "{d}");
+            assert!(accel.occluded(o, d, 0.0, 100.0), "{d}");
+        }
+    }
 
     /// Brute force over all triangles agrees with the BVH on random rays.
     #[test]
