@@ -735,12 +735,7 @@ pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Resu
 
 /// `n` points uniform by area on `mesh` with their triangles (deterministic in `seed`).
 pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> (Vec<Vec3>, Vec<u32>) {
-    let areas: Vec<f32> = (0..mesh.num_triangles())
-        .map(|t| {
-            let [a, b, c] = mesh.corners(t);
-            0.5 * (b - a).cross(c - a).length()
-        })
-        .collect();
+    let areas: Vec<f32> = (0..mesh.num_triangles()).map(|t| mesh.area(t)).collect();
     let mut cdf = Vec::with_capacity(areas.len());
     let mut acc = 0.0f64;
     for a in &areas {
@@ -752,12 +747,8 @@ pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> (Vec<Vec3>, Vec<u32>)
         .map(|_| {
             let x = rng.next_f64() * acc;
             let t = cdf.partition_point(|&c| c < x).min(areas.len() - 1);
-            let [a, b, c] = mesh.corners(t);
-            let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            (a + (b - a) * u + (c - a) * v, t as u32)
+            let (u, v) = (rng.next_f32(), rng.next_f32());
+            (mesh.point_at(t, u, v), t as u32)
         })
         .unzip()
 }

@@ -23,14 +23,7 @@ pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> u64 {
     h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
     h.bytes(serde_json::to_string(cfg).unwrap_or_default().as_bytes());
     h.bytes(&cfg.seed.to_le_bytes());
-    for v in &ds.mesh.vertices {
-        h.f32s(&v.to_array());
-    }
-    for t in &ds.mesh.triangles {
-        for i in t {
-            h.bytes(&i.to_le_bytes());
-        }
-    }
+    ds.mesh.hash_into(&mut h);
     for v in &ds.train.views {
         let c = &v.camera;
         for x in c

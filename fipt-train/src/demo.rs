@@ -138,10 +138,7 @@ fn build_mesh(d: &Desc) -> (Mesh, Vec<[usize; 2]>) {
 
 /// Cameras inside the room looking at random points of its furniture and walls; deterministic.
 fn cameras(d: &Desc, mesh: &Mesh, n: usize, stream: u64) -> Vec<Camera> {
-    let (lo, hi) = mesh.vertices.iter().fold(
-        (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-        |(a, b), &v| (a.min(v), b.max(v)),
-    );
+    let (lo, hi) = mesh.bounds();
     let mut rng = Rng::new(d.seed, stream);
     let centres: Vec<Vec3> = mesh
         .triangles
@@ -233,8 +230,7 @@ fn gt_maps(
             let x = origin + dir * hit.t;
             let m = mats.at(x, hit.tri);
             let part = &meta.parts[tri_part[hit.tri as usize]];
-            let [a, b, c] = mesh.corners(hit.tri as usize);
-            let ng = (b - a).cross(c - a).normalize();
+            let ng = mesh.normal(hit.tri as usize);
             let front = ng.dot(-dir) > 0.0;
             let n = if front { ng } else { -ng };
             let base = m.base_color;
@@ -300,10 +296,7 @@ pub fn write_scene(dir: &Path, quiet: bool) -> Result<bool> {
         return Ok(false);
     }
     let d: Desc = serde_json::from_str(DEMO_SCENE).context("configs/demo-scene.json: malformed")?;
-    let name = dir
-        .file_name()
-        .map_or("scene".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = dir.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let tmp = crate::scene_model::sibling(dir, "tmp");
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(tmp.join("textures"))
         .with_context(|| format!("{}: cannot create", tmp.display()))?;
@@ -330,12 +323,7 @@ fn write_into(dir: &Path, d: &Desc, quiet: bool) -> Result<()> {
         if !labels.contains(&p.semantic) {
             labels.push(p.semantic.clone());
         }
-        let area: f64 = (r[0]..r[1])
-            .map(|t| {
-                let [a, b, c] = mesh.corners(t);
-                0.5 * (b - a).cross(c - a).length() as f64
-            })
-            .sum();
+        let area: f64 = (r[0]..r[1]).map(|t| mesh.area(t) as f64).sum();
         let texture = match &p.material.checker {
             Some(c) => {
                 let file = format!("textures/{}.exr", p.name);
@@ -526,9 +514,8 @@ mod tests {
             let h = accel
                 .closest(centre, dir, 0.0, f32::INFINITY)
                 .unwrap_or_else(|| panic!("no hit towards {dir}"));
-            let [a, b, c] = mesh.corners(h.tri as usize);
             assert!(
-                (b - a).cross(c - a).dot(-dir) > 0.0,
+                mesh.cross(h.tri as usize).dot(-dir) > 0.0,
                 "back face towards {dir}"
             );
         }
@@ -549,8 +536,7 @@ mod tests {
                         .iter()
                         .position(|r| (r[0]..r[1]).contains(&t))
                         .unwrap();
-                    let [a, b, cc] = mesh.corners(t);
-                    if (b - a).cross(cc - a).dot(-dir) > 0.0 {
+                    if mesh.cross(t).dot(-dir) > 0.0 {
                         seen[part] = true;
                     }
                 }

@@ -14,7 +14,7 @@
 
 use crate::output::write_png;
 use crate::pipeline::evaluate::{self, PartRow};
-use crate::pipeline::predict::ViewMaps;
+use crate::pipeline::predict::{ViewMaps, rgb_of_scalar};
 use crate::report::RunReport;
 use anyhow::{Context, Result};
 use fipt_bake::emitters::Emitter;
@@ -192,11 +192,6 @@ fn times(h: &mut String, run: &RunReport) {
     );
 }
 
-/// Grey RGB of a scalar map.
-fn grey(v: &[f32]) -> Vec<f32> {
-    v.iter().flat_map(|&x| [x; 3]).collect()
-}
-
 /// |a − b| × 4, per value.
 fn err(a: &[f32], b: &[f32]) -> Vec<f32> {
     a.iter().zip(b).map(|(x, y)| 4.0 * (x - y).abs()).collect()
@@ -278,7 +273,7 @@ fn views(h: &mut String, ds: &Dataset, out: &Path, img_dir: &Path) -> Result<()>
         let gt = |kind: MapKind, scalar: bool| -> Option<Vec<f32>> {
             v.map(kind).map(|i| {
                 if scalar {
-                    grey(&i.first_channel().data)
+                    rgb_of_scalar(&i.first_channel().data)
                 } else {
                     (0..i.num_pixels()).flat_map(|p| i.rgb(p)).collect()
                 }
@@ -287,8 +282,8 @@ fn views(h: &mut String, ds: &Dataset, out: &Path, img_dir: &Path) -> Result<()>
         let rows: [(&str, MapKind, bool, Vec<f32>); 5] = [
             ("k_d", MapKind::DiffCol, false, m.kd.clone()),
             ("a′", MapKind::Albedo, false, m.albedo.clone()),
-            ("σ", MapKind::Roughness, true, grey(&m.sigma)),
-            ("m", MapKind::Metallic, true, grey(&m.metallic)),
+            ("σ", MapKind::Roughness, true, rgb_of_scalar(&m.sigma)),
+            ("m", MapKind::Metallic, true, rgb_of_scalar(&m.metallic)),
             ("emission", MapKind::Emit, false, m.emit.clone()),
         ];
         for (i, (q, kind, scalar, est)) in rows.into_iter().enumerate() {

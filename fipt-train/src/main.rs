@@ -407,10 +407,7 @@ fn main() {
             Ok(())
         }),
         Cmd::Zoo { zoo, what } => {
-            let z = fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
-                zoo.as_deref(),
-                std::path::Path::new("zoo"),
-            ));
+            let z = fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()));
             match what {
                 ZooCmd::List { json } => z.list().and_then(|entries| {
                     if json {
@@ -445,10 +442,7 @@ fn main() {
             zoo,
             json,
         } => match model {
-            Some(m) => fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
-                zoo.as_deref(),
-                std::path::Path::new("zoo"),
-            ))
+            Some(m) => fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
             .locate(&m)
             .and_then(|dir| pipeline::eval_model(&scene, &dir, &out)),
             None => pipeline::eval(&scene, &out),
@@ -487,7 +481,7 @@ fn main() {
             let source = match model {
                 Some(name_or_dir) => fipt_train::render::Source::Model {
                     name_or_dir,
-                    zoo: fipt_train::zoo::resolve(zoo.as_deref(), std::path::Path::new("zoo")),
+                    zoo: fipt_train::zoo::working(zoo.as_deref()),
                 },
                 None => fipt_train::render::Source::Truth,
             };
@@ -558,10 +552,7 @@ fn main() {
                 json,
                 batch,
                 reps,
-            } => fipt_train::zoo::Zoo::new(fipt_train::zoo::resolve(
-                zoo.as_deref(),
-                std::path::Path::new("zoo"),
-            ))
+            } => fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
             .locate(&model)
             .and_then(|dir| bench::query(&dir, json, batch, reps)),
             BenchCmd::Step {

@@ -584,7 +584,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     let (source, r) = match &model {
         Some(m) => {
             if let Some(mesh) = views.as_ref().and_then(|v| v.mesh.as_ref())
-                && format!("{:016x}", crate::scene_model::mesh_hash(mesh)) != m.manifest.mesh_hash
+                && crate::scene_model::mesh_hash(mesh) != m.manifest.mesh_hash
             {
                 bail!(
                     "{}: the scene's mesh differs from the model's ({}); its cameras would not see the same room",

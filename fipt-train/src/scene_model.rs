@@ -108,18 +108,11 @@ pub struct SaveInfo<'a> {
     pub run_metrics: &'a serde_json::Value,
 }
 
-/// FNV-64 of a mesh's vertices and triangles.
-pub fn mesh_hash(mesh: &Mesh) -> u64 {
+/// FNV-64 of a mesh's vertices and triangles, hex (the manifest's `mesh_hash`).
+pub fn mesh_hash(mesh: &Mesh) -> String {
     let mut h = Fnv64::default();
-    for v in &mesh.vertices {
-        h.f32s(&v.to_array());
-    }
-    for t in &mesh.triangles {
-        for i in t {
-            h.bytes(&i.to_le_bytes());
-        }
-    }
-    h.finish()
+    mesh.hash_into(&mut h);
+    format!("{:016x}", h.finish())
 }
 
 fn file_hash(bytes: &[u8]) -> String {
@@ -214,7 +207,7 @@ pub fn save(
             code_version: env!("CARGO_PKG_VERSION").into(),
             name: info.name.into(),
             scene: info.scene.display().to_string(),
-            mesh_hash: format!("{:016x}", mesh_hash(mesh)),
+            mesh_hash: mesh_hash(mesh),
             triangles: mesh.num_triangles(),
             image_size: info.image_size,
             grid_levels: g.levels,
@@ -250,10 +243,10 @@ pub fn save(
 
 /// `dir` with `.name.<tag>-<pid>` as its last component (same parent, so renames stay on one
 /// file system).
-fn sibling(dir: &Path, tag: &str) -> PathBuf {
+pub(crate) fn sibling(dir: &Path, tag: &str) -> PathBuf {
     let name = dir
         .file_name()
-        .map_or("model".into(), |n| n.to_string_lossy().into_owned());
+        .map_or("folder".into(), |n| n.to_string_lossy().into_owned());
     dir.with_file_name(format!(".{name}.{tag}-{}", std::process::id()))
 }
 
@@ -393,7 +386,7 @@ impl SceneModel {
         let model = FiptModel::load(dir, device).map_err(anyhow::Error::msg)?;
         let mesh = Mesh::load_obj(&dir.join("mesh.obj"))?;
         let mesh_path = dir.join("mesh.obj");
-        if format!("{:016x}", mesh_hash(&mesh)) != manifest.mesh_hash {
+        if mesh_hash(&mesh) != manifest.mesh_hash {
             bail!(
                 "{}: the mesh differs from the manifest's hash",
                 mesh_path.display()

@@ -24,6 +24,11 @@ pub fn resolve(explicit: Option<&Path>, fallback: &Path) -> PathBuf {
         .unwrap_or_else(|| fallback.to_path_buf())
 }
 
+/// The zoo of every command but `run`: the explicit one, else `$FIPT_ZOO`, else `./zoo`.
+pub fn working(explicit: Option<&Path>) -> PathBuf {
+    resolve(explicit, Path::new("zoo"))
+}
+
 /// The default zoo of `run`: `zoo/` beside the output folder.
 pub fn beside(out: &Path) -> PathBuf {
     let parent = std::path::absolute(out)

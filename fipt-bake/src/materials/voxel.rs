@@ -185,9 +185,7 @@ impl<'a> VoxelMaterials<'a> {
                 if always_forward.get(t).copied().unwrap_or(false) {
                     return 0;
                 }
-                let [a, b, c] = mesh.corners(t);
-                let area = 0.5 * (b - a).cross(c - a).length();
-                ((area * per_area).ceil() as usize).clamp(1, 1 << 20)
+                ((mesh.area(t) * per_area).ceil() as usize).clamp(1, 1 << 20)
             })
             .collect();
         let mut offsets = Vec::with_capacity(counts.len() + 1);
@@ -199,14 +197,10 @@ impl<'a> VoxelMaterials<'a> {
         let (points, tris): (Vec<Vec3>, Vec<u32>) = (0..mesh.num_triangles())
             .into_par_iter()
             .flat_map_iter(|t| {
-                let [a, b, c] = mesh.corners(t);
                 let mut rng = fipt_core::rng::Rng::new(seed, t as u64);
                 (0..counts[t]).map(move |_| {
-                    let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
-                    if u + v > 1.0 {
-                        (u, v) = (1.0 - u, 1.0 - v);
-                    }
-                    (a + (b - a) * u + (c - a) * v, t as u32)
+                    let (u, v) = (rng.next_f32(), rng.next_f32());
+                    (mesh.point_at(t, u, v), t as u32)
                 })
             })
             .unzip();

@@ -41,6 +41,30 @@ impl Mesh {
         0.5 * self.cross(t).length()
     }
 
+    /// The point of triangle `t` at (u, v) ∈ [0, 1)²: `v0 + u·e1 + v·e2`, folded back into the
+    /// triangle where u + v > 1 (uniform in area for uniform u, v).
+    pub fn point_at(&self, t: usize, u: f32, v: f32) -> Vec3 {
+        let [a, b, c] = self.corners(t);
+        let (u, v) = if u + v > 1.0 {
+            (1.0 - u, 1.0 - v)
+        } else {
+            (u, v)
+        };
+        a + (b - a) * u + (c - a) * v
+    }
+
+    /// Feeds the vertices and triangles into an FNV-64 hash (cache keys, model manifests).
+    pub fn hash_into(&self, h: &mut crate::io::Fnv64) {
+        for v in &self.vertices {
+            h.f32s(&v.to_array());
+        }
+        for t in &self.triangles {
+            for i in t {
+                h.bytes(&i.to_le_bytes());
+            }
+        }
+    }
+
     /// Unit winding normal of triangle `t`.
     pub fn normal(&self, t: usize) -> Vec3 {
         self.cross(t).normalize_or_zero()

@@ -619,7 +619,7 @@ pub fn eval_model(scene: &Path, model_dir: &Path, out: &Path) -> Result<EvalRepo
     let cfg_path = model_dir.join("config.json");
     let cfg = Config::load(&cfg_path)?;
     let ds = Dataset::load(scene, &load_opts())?;
-    if format!("{:016x}", crate::scene_model::mesh_hash(&ds.mesh)) != sm.manifest.mesh_hash {
+    if crate::scene_model::mesh_hash(&ds.mesh) != sm.manifest.mesh_hash {
         anyhow::bail!(
             "{}: the scene's mesh differs from the model's ({})",
             scene.display(),

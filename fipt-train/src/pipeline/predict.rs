@@ -108,7 +108,7 @@ pub fn predict_view(
     m
 }
 
-fn rgb_of_scalar(v: &[f32]) -> Vec<f32> {
+pub(crate) fn rgb_of_scalar(v: &[f32]) -> Vec<f32> {
     v.iter().flat_map(|&x| [x, x, x]).collect()
 }
 
