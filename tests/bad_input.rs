@@ -113,7 +113,10 @@ fn missing_folder_and_files() {
     assert_fails(&d, &["Image", "not found"]);
     let d = valid_scene("nomap");
     std::fs::remove_file(d.join("train/DiffCol/001_0001.exr")).unwrap();
-    assert_fails(&d, &["DiffCol/001_0001.exr", "file not found"]);
+    assert_fails(
+        &d,
+        &["DiffCol", "missing 1 of the 2 frames", "001_0001.exr"],
+    );
 }
 
 #[test]
@@ -147,7 +150,20 @@ fn size_and_count_mismatches() {
     assert_fails(&d, &["DiffCol/000_0001.exr", "16x14"]);
     let d = valid_scene("count");
     std::fs::remove_file(d.join("train/Image/001_0001.exr")).unwrap();
-    assert_fails(&d, &["Image", "1 EXR images", "2 frames"]);
+    assert_fails(
+        &d,
+        &[
+            "Image",
+            "missing 1 of the 2 frames",
+            "transforms.json",
+            "001_0001.exr",
+        ],
+    );
+    let d = valid_scene("extra");
+    Image::new(W, H, 3)
+        .write_exr(&d.join("train/Image/007_0001.exr"))
+        .unwrap();
+    assert_fails(&d, &["Image", "007_0001.exr", "no frame", "2 frames"]);
 }
 
 #[test]

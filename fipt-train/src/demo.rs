@@ -136,21 +136,34 @@ fn build_mesh(d: &Desc) -> (Mesh, Vec<[usize; 2]>) {
     (mesh, ranges)
 }
 
-/// Cameras inside the room looking at random points of its furniture and walls; deterministic.
-fn cameras(d: &Desc, mesh: &Mesh, n: usize, stream: u64) -> Vec<Camera> {
+/// Cameras inside the room looking at random surface points; deterministic. Half the targets
+/// are area-weighted over the whole room (walls, floor and ceiling get photographed, so L′ covers
+/// them), half are area-weighted within a part drawn uniformly (small objects and emitters get
+/// close-ups). Aiming at triangle centres instead favoured the finely tessellated spheres: the
+/// bake then saw too little of the room, its shadings came out ~1.6× too dark (albedo 1.6× too
+/// bright on the walls and floor) and round 0's k_d scored 11.0 dB; with these targets round 0
+/// scores 19.3 dB at 24 views and 21.0 dB at 32.
+fn cameras(d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]], n: usize, stream: u64) -> Vec<Camera> {
     let (lo, hi) = mesh.bounds();
     let mut rng = Rng::new(d.seed, stream);
-    let centres: Vec<Vec3> = mesh
-        .triangles
-        .iter()
-        .step_by(7)
-        .map(|t| {
-            (mesh.vertices[t[0] as usize]
-                + mesh.vertices[t[1] as usize]
-                + mesh.vertices[t[2] as usize])
-                / 3.0
-        })
-        .collect();
+    // Cumulative areas: the whole mesh is one table, each part a slice of it.
+    let mut cdf = Vec::with_capacity(mesh.num_triangles());
+    let mut total = 0.0f64;
+    for t in 0..mesh.num_triangles() {
+        total += mesh.area(t) as f64;
+        cdf.push(total);
+    }
+    let pick = |r: &mut Rng, range: [usize; 2]| -> Vec3 {
+        let below = if range[0] == 0 {
+            0.0
+        } else {
+            cdf[range[0] - 1]
+        };
+        let x = below + (cdf[range[1] - 1] - below) * r.next_f32() as f64;
+        let t = range[0] + cdf[range[0]..range[1]].partition_point(|&c| c < x);
+        let t = t.min(range[1] - 1);
+        mesh.point_at(t, r.next_f32(), r.next_f32())
+    };
     let accel = Accel::build(mesh);
     let mut out = Vec::with_capacity(n);
     while out.len() < n {
@@ -160,7 +173,12 @@ fn cameras(d: &Desc, mesh: &Mesh, n: usize, stream: u64) -> Vec<Camera> {
             u(&mut rng, 0.95, (hi.y - 0.6).max(1.0)),
             u(&mut rng, lo.z + 0.4, hi.z - 0.4),
         );
-        let target = centres[(rng.next_f32() * centres.len() as f32) as usize % centres.len()];
+        let range = if rng.next_f32() < 0.5 {
+            [0, mesh.num_triangles()]
+        } else {
+            ranges[(rng.next_f32() * ranges.len() as f32) as usize % ranges.len()]
+        };
+        let target = pick(&mut rng, range);
         let dir = target - eye;
         if dir.length() < 0.8 {
             continue;
@@ -396,7 +414,7 @@ fn write_into(dir: &Path, d: &Desc, quiet: bool) -> Result<()> {
     };
     for (split, n, stream) in [("train", d.train_views, 1u64), ("val", d.val_views, 2)] {
         let sdir = dir.join(split);
-        let cams = cameras(d, &mesh, n, stream);
+        let cams = cameras(d, &mesh, &ranges, n, stream);
         let frames: Vec<_> = cams
             .iter()
             .enumerate()
@@ -519,11 +537,11 @@ mod tests {
                 "back face towards {dir}"
             );
         }
-        let cams = cameras(&d, &mesh, d.train_views, 1);
+        let cams = cameras(&d, &mesh, &ranges, d.train_views, 1);
         assert_eq!(cams.len(), d.train_views);
         assert_eq!(
             cams[3].origin,
-            cameras(&d, &mesh, d.train_views, 1)[3].origin
+            cameras(&d, &mesh, &ranges, d.train_views, 1)[3].origin
         );
         let mut seen = vec![false; d.parts.len()];
         for c in &cams {

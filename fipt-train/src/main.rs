@@ -334,8 +334,11 @@ fn main() {
         quiet: false,
     });
     let res = match cmd {
+        // Without --quiet the run has printed the report's path as its last line already.
         Cmd::Demo { out, quiet } => fipt_train::demo::demo(&out, quiet).map(|p| {
-            println!("report: {}", p.display());
+            if quiet {
+                println!("report: {}", p.display());
+            }
         }),
         Cmd::Check { scene, json } => check::run(&scene, json),
         Cmd::Bake { job, json } => job.config().and_then(|cfg| {

@@ -325,16 +325,68 @@ fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
 }
 
 /// Counts `*.exr` files in a folder.
-fn count_exr(dir: &Path) -> Result<usize> {
+/// Checks that `dir` holds the EXR file `name(k)` of every frame `k < n` that `lister` lists,
+/// naming the missing files (and, with `strict`, any EXR file no frame names) in the error.
+fn check_frames(
+    dir: &Path,
+    n: usize,
+    name: impl Fn(usize) -> String,
+    lister: &Path,
+    strict: bool,
+) -> Result<()> {
     let rd = std::fs::read_dir(dir).map_err(|e| FileError::new(dir, e.to_string()))?;
-    Ok(rd
+    let present: std::collections::BTreeSet<String> = rd
         .filter_map(|e| e.ok())
         .filter(|e| {
             e.path()
                 .extension()
                 .is_some_and(|x| x.eq_ignore_ascii_case("exr"))
         })
-        .count())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    let list = |names: &[String]| {
+        let shown = names.iter().take(5).cloned().collect::<Vec<_>>().join(", ");
+        if names.len() > 5 {
+            format!("{shown} and {} more", names.len() - 5)
+        } else {
+            shown
+        }
+    };
+    let expected: Vec<String> = (0..n).map(name).collect();
+    let missing: Vec<String> = expected
+        .iter()
+        .filter(|f| !present.contains(*f))
+        .cloned()
+        .collect();
+    if !missing.is_empty() {
+        return Err(FileError::new(
+            dir,
+            format!(
+                "missing {} of the {n} frames that {} lists: {}",
+                missing.len(),
+                lister.display(),
+                list(&missing)
+            ),
+        ));
+    }
+    if strict && present.len() > n {
+        let expected: std::collections::BTreeSet<&String> = expected.iter().collect();
+        let extra: Vec<String> = present
+            .iter()
+            .filter(|f| !expected.contains(f))
+            .cloned()
+            .collect();
+        return Err(FileError::new(
+            dir,
+            format!(
+                "{} EXR file(s) that no frame of {} names ({n} frames): {}",
+                extra.len(),
+                lister.display(),
+                list(&extra)
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn check_size(img: &Image, path: &Path, want: (usize, usize)) -> Result<()> {
@@ -441,16 +493,12 @@ fn load_synthetic_split(
     if !img_dir.is_dir() {
         return Err(FileError::new(&img_dir, "image folder not found"));
     }
-    let n_img = count_exr(&img_dir)?;
-    if n_img != frames.len() {
-        return Err(FileError::new(
-            &img_dir,
-            format!(
-                "{n_img} EXR images but {} lists {} frames",
-                tpath.display(),
-                frames.len()
-            ),
-        ));
+    check_frames(&img_dir, frames.len(), image_file, &tpath, true)?;
+    for &kind in &opts.maps {
+        let folder = dir.join(kind.folder());
+        if folder.is_dir() {
+            check_frames(&folder, frames.len(), |k| kind.file_name(k), &tpath, false)?;
+        }
     }
     let mats: Vec<[[f64; 4]; 4]> = frames
         .iter()
@@ -552,12 +600,12 @@ fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
     if !img_dir.is_dir() {
         return Err(FileError::new(&img_dir, "image folder not found"));
     }
-    let n_img = count_exr(&img_dir)?;
-    if n_img != n {
-        return Err(FileError::new(
-            &img_dir,
-            format!("{n_img} EXR images but cam.txt lists {n} cameras"),
-        ));
+    check_frames(&img_dir, n, image_file, &cam_path, true)?;
+    for &kind in &opts.maps {
+        let folder = root.join(kind.folder());
+        if folder.is_dir() {
+            check_frames(&folder, n, |k| kind.file_name(k), &cam_path, false)?;
+        }
     }
     let first = Image::read_exr(&img_dir.join(image_file(0)))?;
     let size = (first.width, first.height);
