@@ -11,11 +11,12 @@ use fipt_core::model::hashgrid::TableGrad;
 use fipt_core::model::hashgrid_tensor::{encode_tensor, table_tensor};
 use fipt_core::model::step::SegMode;
 use fipt_core::scene::SceneBox;
-use fipt_core::shading::ShadingLayout;
 
 /// Positions are already in the unit cube.
 const UNIT: SceneBox = SceneBox { min: 0.0, max: 1.0 };
-use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, TrainConfig, Trainer};
+mod common;
+use common::batch;
+use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
 
 const TOL: f32 = 1e-4;
@@ -46,24 +47,6 @@ fn config() -> TrainConfig {
 }
 
 /// A batch of 8192 pixels: two parts and a bright emitter, shadings and radiance positive.
-fn batch(n: usize, seed: u64) -> Batch {
-    let mut r = Rng::new(seed, 1);
-    let mut b = Batch::default();
-    for _ in 0..n {
-        let x = [r.next_f32(), r.next_f32(), r.next_f32()];
-        b.x_unit.push(x);
-        b.x_world
-            .push([4.0 * x[0] - 2.0, 2.7 * x[1], 3.0 * x[2] - 1.5]);
-        b.shadings
-            .extend((0..ShadingLayout::DIM).map(|k| 0.05 + r.next_f32() / (1.0 + k as f32 * 0.1)));
-        let emitter = x[0] > 0.8 && x[1] > 0.8;
-        let scale = if emitter { 20.0 } else { 1.0 };
-        b.gt.extend((0..3).map(|_| scale * (0.05 + r.next_f32())));
-        b.seg
-            .push(if emitter { 7 } else { 2 * (x[2] > 0.5) as i32 });
-    }
-    b
-}
 
 #[test]
 fn trainer_step_matches_cpu_backend() {

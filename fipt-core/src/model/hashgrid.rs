@@ -500,6 +500,8 @@ impl TableGrad {
     }
 }
 
+const ADAM_MAGIC: &[u8; 8] = b"FIPTADM1";
+
 /// Adam for the table, applied to touched entries only (global step count for bias correction).
 #[derive(Clone, Debug)]
 pub struct TableAdam {
@@ -521,6 +523,51 @@ impl TableAdam {
             v: vec![0.0; grid.table.len()],
             t: 0,
         }
+    }
+
+    /// The state as bytes (a checkpoint): magic, step count, entry count, then m and v as
+    /// little-endian f32.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(24 + 8 * self.m.len());
+        out.extend_from_slice(ADAM_MAGIC);
+        out.extend_from_slice(&self.t.to_le_bytes());
+        out.extend_from_slice(&(self.m.len() as u64).to_le_bytes());
+        for x in self.m.iter().chain(&self.v) {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+        out
+    }
+
+    /// Restores a state written by `to_bytes` for a table of `grid`'s size; the error says what
+    /// does not fit (the size field is checked against the bytes before anything is allocated).
+    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), String> {
+        if bytes.len() < 20 || &bytes[..8] != ADAM_MAGIC {
+            return Err("not a fipt table optimiser state".into());
+        }
+        let t = i32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+        let n = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
+        if n != self.m.len() as u64 {
+            return Err(format!("{n} table entries, the model has {}", self.m.len()));
+        }
+        if t < 0 || (bytes.len() - 20) as u64 != 8 * n {
+            return Err(format!(
+                "{} bytes of state for {n} entries (truncated or damaged)",
+                bytes.len() - 20
+            ));
+        }
+        let n = n as usize;
+        let mut vals = bytes[20..]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")));
+        for x in self.m.iter_mut().chain(self.v.iter_mut()) {
+            *x = vals.next().expect("sized above");
+        }
+        if self.m.iter().chain(&self.v).any(|x| !x.is_finite()) || self.v.iter().any(|&x| x < 0.0) {
+            return Err("non-finite or negative moments".into());
+        }
+        debug_assert_eq!(self.m.len(), n);
+        self.t = t;
+        Ok(())
     }
 
     /// One Adam step on the touched entries; clears the gradient.

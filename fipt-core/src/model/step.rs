@@ -7,7 +7,7 @@
 
 use super::brdf::reflectances;
 use super::fields::{EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material};
-use super::fipt_model::{FiptModel, ModelSpec};
+use super::fipt_model::{FiptModel, ModelSpec, TableFormat};
 use super::hashgrid::{TableAdam, TableGrad};
 use super::loss;
 use super::render::{Shadings, composite, render};
@@ -19,7 +19,12 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 use std::collections::HashMap;
+use std::path::Path;
 use std::time::Instant;
+
+const OPTIM_FILE: &str = "optim.bpk";
+const TABLE_ADAM_FILE: &str = "table_adam.bin";
+const TRAINER_FILE: &str = "trainer.json";
 
 /// Which segmentation loss to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -170,16 +175,31 @@ impl Trainer {
             scene_box,
         };
         let model = FiptModel::init(spec, &ad, seed);
-        let optim = AdamConfig::new()
+        Self::assemble(cfg, ad, model, seed, None)
+    }
+
+    /// A trainer around `model` (on the autodiff `device`) with fresh optimisers, or burn's
+    /// Adam state from `record` (the table's moments are the caller's to restore).
+    fn assemble(
+        cfg: TrainConfig,
+        device: Device,
+        model: FiptModel,
+        seed: u64,
+        record: Option<burn::optim::OptimizerRecord>,
+    ) -> Self {
+        let mut optim = AdamConfig::new()
             .with_beta_1(cfg.beta1)
             .with_beta_2(cfg.beta2)
             .with_epsilon(cfg.eps)
             .init();
+        if let Some(r) = record {
+            optim = optim.load_record(r);
+        }
         let grid_grad = TableGrad::new(&model.grid);
         let grid_adam = TableAdam::new(&model.grid, cfg.beta1, cfg.beta2, cfg.eps);
         Self {
             cfg,
-            device: ad,
+            device,
             model,
             optim,
             grid_grad,
@@ -188,6 +208,75 @@ impl Trainer {
             steps: 0,
             profile: StepProfile::default(),
         }
+    }
+
+    /// Writes the whole state of the fit between two steps into `dir` (a checkpoint): the model
+    /// with its f32 table (`FiptModel::save`), burn's Adam state of the networks (`optim.bpk`),
+    /// the table's Adam moments (`table_adam.bin`) and the step count (`trainer.json`). Each file
+    /// goes through a temporary name; the caller makes the folder appear atomically.
+    pub fn save_state(&self, dir: &Path) -> Result<(), String> {
+        self.model.save(dir, TableFormat::F32)?;
+        let tmp = dir.join("optim.tmp.bpk");
+        self.optim
+            .to_record()
+            .save(&tmp)
+            .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
+        std::fs::rename(&tmp, dir.join(OPTIM_FILE))
+            .map_err(|e| format!("{}: {e}", dir.join(OPTIM_FILE).display()))?;
+        crate::io::write_bytes_atomic(&dir.join(TABLE_ADAM_FILE), &self.grid_adam.to_bytes())
+            .map_err(|e| e.to_string())?;
+        let state = serde_json::json!({ "steps": self.steps });
+        crate::io::write_bytes_atomic(&dir.join(TRAINER_FILE), state.to_string().as_bytes())
+            .map_err(|e| e.to_string())
+    }
+
+    /// The trainer `save_state` wrote into `dir`, on `device` (plain; autodiff is added here),
+    /// continuing exactly where it stopped: the next `step` gives what the uninterrupted fit's
+    /// would. `cfg` and `seed` must be the fit's own; a model of another shape is refused.
+    pub fn restore(
+        cfg: TrainConfig,
+        device: &Device,
+        seed: u64,
+        dir: &Path,
+    ) -> Result<Self, String> {
+        let ad = device.clone().autodiff();
+        let model = FiptModel::load(dir, &ad)?;
+        let same = |a: serde_json::Result<serde_json::Value>,
+                    b: serde_json::Result<serde_json::Value>| {
+            matches!((a, b), (Ok(a), Ok(b)) if a == b)
+        };
+        if !same(
+            serde_json::to_value(&model.spec.material),
+            serde_json::to_value(&cfg.material),
+        ) || !same(
+            serde_json::to_value(&model.spec.emission),
+            serde_json::to_value(&cfg.emission),
+        ) {
+            return Err(format!(
+                "{}: the checkpoint's networks differ from the config's",
+                dir.join("model.json").display()
+            ));
+        }
+        let optim_path = dir.join(OPTIM_FILE);
+        if !optim_path.is_file() {
+            return Err(format!("{}: missing", optim_path.display()));
+        }
+        let record = burn::optim::OptimizerRecord::load(&optim_path)
+            .map_err(|e| format!("{}: cannot read: {e:?}", optim_path.display()))?;
+        let adam_path = dir.join(TABLE_ADAM_FILE);
+        let adam = crate::io::read_bytes(&adam_path).map_err(|e| e.to_string())?;
+        let state_path = dir.join(TRAINER_FILE);
+        let text = crate::io::read_text(&state_path).map_err(|e| e.to_string())?;
+        let steps = serde_json::from_str::<serde_json::Value>(&text)
+            .ok()
+            .and_then(|v| v.get("steps")?.as_u64())
+            .ok_or_else(|| format!("{}: no step count", state_path.display()))?;
+        let mut t = Self::assemble(cfg, ad, model, seed, Some(record));
+        t.grid_adam
+            .load_bytes(&adam)
+            .map_err(|e| format!("{}: {e}", adam_path.display()))?;
+        t.steps = steps;
+        Ok(t)
     }
 
     /// The forward pass: the encoding leaf, the total loss and its parts.
