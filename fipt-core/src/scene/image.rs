@@ -125,13 +125,53 @@ impl Image {
     }
 }
 
+/// Runs one step of the EXR decoder; its error or panic becomes an error naming `path`.
+fn decode<T>(
+    path: &Path,
+    f: impl FnOnce() -> exr::error::Result<T> + std::panic::UnwindSafe,
+) -> Result<T> {
+    match std::panic::catch_unwind(f) {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => Err(FileError::new(
+            path,
+            format!("not a readable EXR file: {e}"),
+        )),
+        Err(_) => Err(FileError::new(
+            path,
+            "not a readable EXR file (decoder failed)",
+        )),
+    }
+}
+
+/// The largest image `read_exr` accepts: 2^28 pixels (16k × 16k) and 2^30 channel values.
+const MAX_EXR_PIXELS: u128 = 1 << 28;
+const MAX_EXR_VALUES: u128 = 1 << 30;
+
 fn read_exr_unchecked(path: &Path) -> Result<Image> {
     use exr::prelude::*;
     if !path.exists() {
         return Err(FileError::new(path, "file not found"));
     }
-    // The decoder must never take the process down: a panic on a malformed file becomes an error.
-    let res = std::panic::catch_unwind(|| {
+    // The decoder must never take the process down: a panic on a malformed file becomes an error,
+    // and the header's sizes are checked before the decoder allocates from them (a flipped byte
+    // in the data window once asked for 103 GB and aborted the process).
+    let meta = decode(path, || exr::meta::MetaData::read_from_file(path, true))?;
+    for h in meta.headers.iter() {
+        let pixels = h.layer_size.area() as u128;
+        let values = pixels * h.channels.list.len() as u128;
+        if pixels > MAX_EXR_PIXELS || values > MAX_EXR_VALUES {
+            return Err(FileError::new(
+                path,
+                format!(
+                    "EXR header declares a {}x{} image with {} channel(s), over fipt's limit of {MAX_EXR_VALUES} values (damaged header?)",
+                    h.layer_size.width(),
+                    h.layer_size.height(),
+                    h.channels.list.len()
+                ),
+            ));
+        }
+    }
+    let img = decode(path, || {
         read()
             .no_deep_data()
             .largest_resolution_level()
@@ -140,22 +180,7 @@ fn read_exr_unchecked(path: &Path) -> Result<Image> {
             .all_attributes()
             .pedantic()
             .from_file(path)
-    });
-    let img = match res {
-        Ok(Ok(img)) => img,
-        Ok(Err(e)) => {
-            return Err(FileError::new(
-                path,
-                format!("not a readable EXR file: {e}"),
-            ));
-        }
-        Err(_) => {
-            return Err(FileError::new(
-                path,
-                "not a readable EXR file (decoder failed)",
-            ));
-        }
-    };
+    })?;
     let layer = img.layer_data;
     let (w, h) = (layer.size.width(), layer.size.height());
     let chans = &layer.channel_data.list;
