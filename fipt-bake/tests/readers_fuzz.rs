@@ -10,8 +10,20 @@ use fipt_core::model::hashgrid::TableAdam;
 use fipt_core::scene::{Image, Mesh, SceneBox};
 use glam::Vec3;
 use proptest::prelude::*;
+use std::path::PathBuf;
+use std::sync::OnceLock;
 
 const CASES: u32 = 500;
+
+/// The folder of this run's EXR cases.
+fn fuzz_dir() -> PathBuf {
+    std::env::temp_dir().join(format!("fipt-fuzz-exr-{}", std::process::id()))
+}
+
+/// A valid input, built once per test binary and shared by every case.
+fn once(cell: &'static OnceLock<Vec<u8>>, make: fn() -> Vec<u8>) -> &'static [u8] {
+    cell.get_or_init(make)
+}
 
 fn light_field_bytes() -> Vec<u8> {
     let b = SceneBox { min: 0.0, max: 1.0 };
@@ -37,7 +49,7 @@ fn adam() -> (TableAdam, Vec<u8>) {
 }
 
 fn exr_bytes() -> Vec<u8> {
-    let dir = std::env::temp_dir().join(format!("fipt-fuzz-exr-{}", std::process::id()));
+    let dir = fuzz_dir();
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join("ok.exr");
     let data = (0..8 * 6 * 3).map(|i| i as f32 * 0.01).collect();
@@ -98,8 +110,8 @@ proptest! {
     /// L′ (`lightfield.bin` of a scene model): never a panic; a truncation is always an error.
     #[test]
     fn light_field_reader(d in damage()) {
-        let good = light_field_bytes();
-        let bad = apply(&good, &d);
+        static GOOD: OnceLock<Vec<u8>> = OnceLock::new();
+        let bad = apply(once(&GOOD, light_field_bytes), &d);
         let r = std::panic::catch_unwind(|| LightField::from_bytes(&bad).map(|_| ()));
         prop_assert!(r.is_ok(), "panicked on {:?}", d);
         if matches!(d, Damage::Truncate(_)) {
@@ -122,9 +134,9 @@ proptest! {
     /// EXR photos and maps, through the file reader.
     #[test]
     fn exr_reader(d in damage(), k in 0u32..1_000_000) {
-        let bad = apply(&exr_bytes(), &d);
-        let dir = std::env::temp_dir().join(format!("fipt-fuzz-exr-{}", std::process::id()));
-        let p = dir.join(format!("case{k}.exr"));
+        static GOOD: OnceLock<Vec<u8>> = OnceLock::new();
+        let bad = apply(once(&GOOD, exr_bytes), &d);
+        let p = fuzz_dir().join(format!("case{k}.exr"));
         std::fs::write(&p, &bad).unwrap();
         let r = std::panic::catch_unwind(|| Image::read_exr(&p).map(|_| ()));
         std::fs::remove_file(&p).ok();

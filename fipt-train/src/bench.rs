@@ -735,18 +735,12 @@ pub fn query(model_dir: &Path, as_json: bool, batch: usize, reps: usize) -> Resu
 
 /// `n` points uniform by area on `mesh` with their triangles (deterministic in `seed`).
 pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> (Vec<Vec3>, Vec<u32>) {
-    let areas: Vec<f32> = (0..mesh.num_triangles()).map(|t| mesh.area(t)).collect();
-    let mut cdf = Vec::with_capacity(areas.len());
-    let mut acc = 0.0f64;
-    for a in &areas {
-        acc += *a as f64;
-        cdf.push(acc);
-    }
+    let cdf = mesh.area_cdf();
+    let all = [0, mesh.num_triangles()];
     let mut rng = fipt_core::rng::Rng::new(seed, 0);
     (0..n)
         .map(|_| {
-            let x = rng.next_f64() * acc;
-            let t = cdf.partition_point(|&c| c < x).min(areas.len() - 1);
+            let t = Mesh::triangle_by_area(&cdf, all, rng.next_f64());
             let (u, v) = (rng.next_f32(), rng.next_f32());
             (mesh.point_at(t, u, v), t as u32)
         })

@@ -147,21 +147,9 @@ fn cameras(d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]], n: usize, stream: u64) 
     let (lo, hi) = mesh.bounds();
     let mut rng = Rng::new(d.seed, stream);
     // Cumulative areas: the whole mesh is one table, each part a slice of it.
-    let mut cdf = Vec::with_capacity(mesh.num_triangles());
-    let mut total = 0.0f64;
-    for t in 0..mesh.num_triangles() {
-        total += mesh.area(t) as f64;
-        cdf.push(total);
-    }
+    let cdf = mesh.area_cdf();
     let pick = |r: &mut Rng, range: [usize; 2]| -> Vec3 {
-        let below = if range[0] == 0 {
-            0.0
-        } else {
-            cdf[range[0] - 1]
-        };
-        let x = below + (cdf[range[1] - 1] - below) * r.next_f32() as f64;
-        let t = range[0] + cdf[range[0]..range[1]].partition_point(|&c| c < x);
-        let t = t.min(range[1] - 1);
+        let t = Mesh::triangle_by_area(&cdf, range, r.next_f32() as f64);
         mesh.point_at(t, r.next_f32(), r.next_f32())
     };
     let accel = Accel::build(mesh);

@@ -538,8 +538,8 @@ impl TableAdam {
         out
     }
 
-    /// Restores a state written by `to_bytes` for a table of `grid`'s size; the error says what
-    /// does not fit (the size field is checked against the bytes before anything is allocated).
+    /// Restores a state written by `to_bytes` for a table of this optimiser's size; the error
+    /// says what does not fit (the size field is checked against the bytes before anything is allocated).
     pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), String> {
         if bytes.len() < 20 || &bytes[..8] != ADAM_MAGIC {
             return Err("not a fipt table optimiser state".into());
@@ -555,7 +555,6 @@ impl TableAdam {
                 bytes.len() - 20
             ));
         }
-        let n = n as usize;
         let mut vals = bytes[20..]
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")));
@@ -565,7 +564,6 @@ impl TableAdam {
         if self.m.iter().chain(&self.v).any(|x| !x.is_finite()) || self.v.iter().any(|&x| x < 0.0) {
             return Err("non-finite or negative moments".into());
         }
-        debug_assert_eq!(self.m.len(), n);
         self.t = t;
         Ok(())
     }

@@ -216,13 +216,12 @@ impl Trainer {
     /// goes through a temporary name; the caller makes the folder appear atomically.
     pub fn save_state(&self, dir: &Path) -> Result<(), String> {
         self.model.save(dir, TableFormat::F32)?;
-        let tmp = dir.join("optim.tmp.bpk");
-        self.optim
+        let optim = self
+            .optim
             .to_record()
-            .save(&tmp)
-            .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
-        std::fs::rename(&tmp, dir.join(OPTIM_FILE))
-            .map_err(|e| format!("{}: {e}", dir.join(OPTIM_FILE).display()))?;
+            .into_bytes()
+            .map_err(|e| format!("{}: {e:?}", dir.join(OPTIM_FILE).display()))?;
+        crate::io::write_bytes_atomic(&dir.join(OPTIM_FILE), &optim).map_err(|e| e.to_string())?;
         crate::io::write_bytes_atomic(&dir.join(TABLE_ADAM_FILE), &self.grid_adam.to_bytes())
             .map_err(|e| e.to_string())?;
         let state = serde_json::json!({ "steps": self.steps });

@@ -324,7 +324,6 @@ fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
     Ok(frames)
 }
 
-/// Counts `*.exr` files in a folder.
 /// Checks that `dir` holds the EXR file `name(k)` of every frame `k < n` that `lister` lists,
 /// naming the missing files (and, with `strict`, any EXR file no frame names) in the error.
 fn check_frames(

@@ -53,6 +53,30 @@ impl Mesh {
         a + (b - a) * u + (c - a) * v
     }
 
+    /// Cumulative triangle areas (f64 sums of the f32 areas), for drawing triangles by area
+    /// with `triangle_by_area`.
+    pub fn area_cdf(&self) -> Vec<f64> {
+        let mut total = 0.0f64;
+        (0..self.num_triangles())
+            .map(|t| {
+                total += self.area(t) as f64;
+                total
+            })
+            .collect()
+    }
+
+    /// The triangle of `range` (a slice of `cdf = area_cdf()`) that a uniform `u` ∈ [0, 1)
+    /// picks, with probability proportional to its area.
+    pub fn triangle_by_area(cdf: &[f64], range: [usize; 2], u: f64) -> usize {
+        let below = if range[0] == 0 {
+            0.0
+        } else {
+            cdf[range[0] - 1]
+        };
+        let x = below + (cdf[range[1] - 1] - below) * u;
+        (range[0] + cdf[range[0]..range[1]].partition_point(|&c| c < x)).min(range[1] - 1)
+    }
+
     /// Feeds the vertices and triangles into an FNV-64 hash (cache keys, model manifests).
     pub fn hash_into(&self, h: &mut crate::io::Fnv64) {
         for v in &self.vertices {
