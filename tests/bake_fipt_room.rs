@@ -54,7 +54,7 @@ fn gt_render_of_baked_shadings_matches_images() {
             focal: views[k].focal,
         })
         .collect();
-    let baked = bake_views(&accel, &lf, &subset, &cfg, &|_| {});
+    let baked = bake_views(&accel, &lf, &subset, &cfg, &|_| true).unwrap();
     let scores: Vec<_> = picked
         .iter()
         .zip(&baked.shadings)

@@ -55,12 +55,7 @@ fn write_nerfstudio(dir: &Path, scene: &Path, cams: &[&Camera]) {
         .iter()
         .enumerate()
         .map(|(k, c)| {
-            let r = c.rotation;
-            let cols = [r.x_axis, -r.y_axis, -r.z_axis, c.origin];
-            let m: Vec<Vec<f64>> = (0..3)
-                .map(|i| cols.iter().map(|v| v[i]).collect())
-                .chain([vec![0.0, 0.0, 0.0, 1.0]])
-                .collect();
+            let m = c.to_opengl_c2w();
             let ext = if k % 2 == 0 { ".exr" } else { "" };
             json!({"file_path": format!("images/{k:03}_0001{ext}"), "transform_matrix": m})
         })

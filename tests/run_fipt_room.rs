@@ -6,7 +6,8 @@
 //! three emitters are extracted with no false emitter area above 1 % of the true area; the val
 //! views re-rendered and relit from the recovered scene beat the trivial predictors; the scene
 //! model lands in the zoo and renders from there with inserted objects and switched-off
-//! emitters; and a rerun with the same seed gives the same round-0 metrics to 1e-4.
+//! emitters; and the same run killed at points across all stages and rounds (and once stopped
+//! by Ctrl-C) resumes to the same metrics to 1e-4, never showing a partial file.
 
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
 use fipt_train::pipeline::evaluate::constant_predictor;
@@ -500,25 +501,55 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         "{err}"
     );
 
-    // Same seed, same round 0 (the bake cache is reused; the fit and everything after rerun,
-    // without the refinement round, whose determinism the integrator's tests check).
-    std::fs::create_dir_all(base.join("b/cache")).unwrap();
-    std::fs::copy(
-        base.join("a/cache/shadings.bin"),
-        base.join("b/cache/shadings.bin"),
-    )
-    .unwrap();
-    let mut cfg: Value = read_json(&fast);
-    cfg["refine"]["rounds"] = Value::from(0);
-    cfg["render"]["val"] = Value::from(false);
-    let round0 = base.join("round0.json");
-    std::fs::write(&round0, serde_json::to_string(&cfg).unwrap()).unwrap();
-    let m2 = run(&base.join("b"), &round0, None);
-    assert_eq!(m2["bake_from_cache"], Value::Bool(true));
-    for k in METRICS {
-        let (a, b) = (get(&rounds[0], k), get(&m2, k));
-        assert!((a - b).abs() <= 1e-4 * a.abs().max(1.0), "{k}: {a} vs {b}");
+    // The same command, killed (SIGKILL) at points across every stage and round and once
+    // stopped by Ctrl-C (SIGINT) during a fit, each time run again: it resumes from its
+    // checkpoints, never shows a partial file, and ends with the uninterrupted run's metrics
+    // to 1e-4 (the whole metrics.json but times, paths and the resume note).
+    let b = base.join("b");
+    let stops = [
+        Stop::kill("the bake", |o| o.join("config.json").exists(), 3000),
+        Stop {
+            name: "round 0's fit (Ctrl-C)",
+            when: |o| o.join("checkpoint/round0/step0000100").exists(),
+            delay_ms: 0,
+            sigint: true,
+        },
+        Stop::kill(
+            "round 0's fit",
+            |o| o.join("checkpoint/round0/step0000300").exists(),
+            100,
+        ),
+        Stop::kill(
+            "refinement 1",
+            |o| o.join("checkpoint/round0/report.json").exists(),
+            1500,
+        ),
+        Stop::kill(
+            "round 1's fit",
+            |o| o.join("checkpoint/round1/step0000200").exists(),
+            100,
+        ),
+        Stop::kill("the maps", |o| staged(o, "maps"), 300),
+        Stop::kill("the re-renders", |o| staged(o, "render"), 1000),
+    ];
+    for stop in &stops {
+        interrupt(&b, &fast, stop);
+        assert_complete(&b);
     }
+    let m2 = run(&b, &fast, None);
+    assert!(
+        m2["resumed"].as_str().is_some(),
+        "the last run did not resume"
+    );
+    assert_complete(&b);
+    let mut diffs = Vec::new();
+    same_json(&m, &m2, "", &mut diffs);
+    assert!(diffs.is_empty(), "resumed vs uninterrupted: {diffs:?}");
+    let leftovers: Vec<_> = walk(&b)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporaries left: {leftovers:?}");
     let _ = std::fs::remove_dir_all(&base);
 }
 
@@ -546,4 +577,235 @@ fn constant_predictor_scores() -> ([f64; 3], f32) {
         ],
         c.sigma,
     )
+}
+
+/// One interruption of a run: once `when` holds in its output folder, wait `delay_ms`, then
+/// send SIGKILL (or SIGINT).
+struct Stop {
+    name: &'static str,
+    when: fn(&Path) -> bool,
+    delay_ms: u64,
+    sigint: bool,
+}
+
+impl Stop {
+    fn kill(name: &'static str, when: fn(&Path) -> bool, delay_ms: u64) -> Self {
+        Self {
+            name,
+            when,
+            delay_ms,
+            sigint: false,
+        }
+    }
+}
+
+/// Whether a staged folder of `name` (written before it replaces `OUT/name`) exists.
+fn staged(out: &Path, name: &str) -> bool {
+    let prefix = format!(".{name}.tmp-");
+    std::fs::read_dir(out)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+}
+
+/// Starts `fipt-train run` on the fast config into `out` and stops it as `stop` says. A
+/// SIGINT must end it with exit code 130, one line on stderr, and a checkpoint of the step
+/// that line names.
+fn interrupt(out: &Path, config: &Path, stop: &Stop) {
+    std::fs::create_dir_all(out).unwrap();
+    let err_path = out.with_extension("stderr");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
+        .args(["run", "--json", "--no-zoo", "--scene"])
+        .arg(scene_dir())
+        .arg("--out")
+        .arg(out)
+        .arg("--config")
+        .arg(config)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .unwrap();
+    loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            panic!(
+                "the run ended ({st}) before the stop in {}: {}",
+                stop.name,
+                std::fs::read_to_string(&err_path).unwrap_or_default()
+            );
+        }
+        if (stop.when)(out) {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(stop.delay_ms));
+    if !stop.sigint {
+        child.kill().unwrap();
+        let st = child.wait().unwrap();
+        eprintln!("killed during {}: {st}", stop.name);
+        return;
+    }
+    let ok = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let st = child.wait().unwrap();
+    let err = std::fs::read_to_string(&err_path).unwrap();
+    assert_eq!(st.code(), Some(130), "Ctrl-C in {}: {st}, {err}", stop.name);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "Ctrl-C: not one line: {err}");
+    eprintln!("Ctrl-C during {}: {}", stop.name, lines[0]);
+    let step: usize = lines[0]
+        .strip_prefix("interrupted: round 0's fit saved at step ")
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("Ctrl-C message: {err}"));
+    let newest = std::fs::read_dir(out.join("checkpoint/round0"))
+        .unwrap()
+        .flatten()
+        .filter_map(|e| {
+            e.file_name()
+                .to_str()?
+                .strip_prefix("step")?
+                .parse::<usize>()
+                .ok()
+        })
+        .max();
+    assert_eq!(
+        newest,
+        Some(step),
+        "the checkpoint is not the step the message names"
+    );
+    assert!(step >= 100);
+}
+
+/// Every file under `dir`, recursively.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.push(p.clone());
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// No partial file is visible in a run's output folder: outside temporaries (names with
+/// `.tmp`, which the next run removes), every file is non-empty and reads as what its
+/// extension says, every checkpoint folder holds the whole state, and every map folder the
+/// same views for each map.
+fn assert_complete(out: &Path) {
+    for p in walk(out) {
+        let s = p.to_string_lossy().into_owned();
+        if s.contains(".tmp") {
+            continue;
+        }
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        if p.is_dir() {
+            if name.starts_with("step") && s.contains("checkpoint") {
+                for f in [
+                    "progress.json",
+                    "sampler.bin",
+                    "trainer.json",
+                    "optim.bpk",
+                    "table_adam.bin",
+                    "model.json",
+                ] {
+                    assert!(p.join(f).is_file(), "{s}: {f} missing");
+                }
+            }
+            continue;
+        }
+        let len = std::fs::metadata(&p).unwrap().len();
+        assert!(len > 0, "{s}: empty");
+        match p.extension().and_then(|e| e.to_str()) {
+            Some("json") => {
+                serde_json::from_str::<Value>(&std::fs::read_to_string(&p).unwrap())
+                    .unwrap_or_else(|e| panic!("{s}: {e}"));
+            }
+            Some("png") => {
+                image::open(&p).unwrap_or_else(|e| panic!("{s}: {e}"));
+            }
+            Some("exr") => {
+                fipt_core::scene::Image::read_exr(&p).unwrap_or_else(|e| panic!("{s}: {e}"));
+            }
+            Some("html") => {
+                let t = std::fs::read_to_string(&p).unwrap();
+                assert!(t.trim_end().ends_with("</html>"), "{s}: cut short");
+            }
+            _ => {}
+        }
+    }
+    // A map folder holds every view of every map it has.
+    for split in ["train", "val"] {
+        let dir = out.join("maps").join(split);
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        let by_kind: std::collections::BTreeMap<String, usize> = entries
+            .flatten()
+            .filter(|e| e.file_name() != "preview")
+            .map(|e| {
+                let n = std::fs::read_dir(e.path()).unwrap().count();
+                (e.file_name().to_string_lossy().into_owned(), n)
+            })
+            .collect();
+        let counts: std::collections::BTreeSet<usize> = by_kind.values().copied().collect();
+        assert!(
+            counts.len() <= 1,
+            "{}: views missing: {by_kind:?}",
+            dir.display()
+        );
+    }
+}
+
+/// Keys of metrics.json that may differ between an uninterrupted and a resumed run.
+const NOT_COMPARED: [&str; 11] = [
+    "time_s",
+    "peak_rss_mb",
+    "step_profile",
+    "resumed",
+    "bake_from_cache",
+    "model_dir",
+    "zoo_entry",
+    "refine_s",
+    "train_s",
+    "seconds",
+    "refine_paths",
+];
+
+/// The dotted paths where `a` and `b` differ (numbers by more than 1e-4 relative).
+fn same_json(a: &Value, b: &Value, at: &str, out: &mut Vec<String>) {
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            for (k, u) in x {
+                if NOT_COMPARED.contains(&k.as_str()) {
+                    continue;
+                }
+                match y.get(k) {
+                    Some(v) => same_json(u, v, &format!("{at}.{k}"), out),
+                    None => out.push(format!("{at}.{k} missing")),
+                }
+            }
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => {
+            for (i, (u, v)) in x.iter().zip(y).enumerate() {
+                same_json(u, v, &format!("{at}[{i}]"), out);
+            }
+        }
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            if (x - y).abs() > 1e-4 * x.abs().max(1.0) {
+                out.push(format!("{at}: {x} vs {y}"));
+            }
+        }
+        _ if a != b => out.push(format!("{at}: {a} vs {b}")),
+        _ => {}
+    }
 }

@@ -26,6 +26,16 @@ impl Rng {
         }
     }
 
+    /// The generator's whole state, to continue it later with `from_state` (a checkpoint).
+    pub fn state(&self) -> u64 {
+        self.state
+    }
+
+    /// The generator `state` returned: it continues exactly where that one stood.
+    pub fn from_state(state: u64) -> Self {
+        Self { state }
+    }
+
     #[inline(always)]
     pub fn next_u64(&mut self) -> u64 {
         self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);

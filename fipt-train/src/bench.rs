@@ -400,10 +400,12 @@ pub fn bake(as_json: bool, reps: usize) -> Result<()> {
     let cfg = BakeConfig::default();
     let lf = build_light_field(&views, cfg.voxel_res);
     // Rays actually cast (GGX samples below the horizon cast none); the same every repetition.
-    let rays = bake_views(&accel, &lf, &views, &cfg, &|_| {}).rays;
+    let rays = bake_views(&accel, &lf, &views, &cfg, &|_| true)
+        .ok_or_else(|| anyhow::anyhow!("bake stopped"))?
+        .rays;
     let time = |threads: usize| -> Result<Throughput> {
         let times = time_on_pool(threads, reps, &|| {
-            bake_views(&accel, &lf, &views, &cfg, &|_| {});
+            bake_views(&accel, &lf, &views, &cfg, &|_| true);
         })?;
         Ok(Throughput::of(rays, times))
     };
@@ -612,12 +614,12 @@ pub fn refine(scene: &Path, run: &Path, as_json: bool, views: usize) -> Result<(
             &rcfg,
             &scope,
             false,
-        );
-        (r.shadings, t.elapsed().as_secs_f64())
+        )?;
+        Ok::<_, anyhow::Error>((r.shadings, t.elapsed().as_secs_f64()))
     };
-    let (cached, t_cached) = go(true, 1);
-    let (exact, t_exact) = go(false, 1);
-    let (exact2, t_exact2) = go(false, 2);
+    let (cached, t_cached) = go(true, 1)?;
+    let (exact, t_exact) = go(false, 1)?;
+    let (exact2, t_exact2) = go(false, 2)?;
     let mut rows = Vec::new();
     let mut groups = vec![("L_d".to_string(), ShadingLayout::LD)];
     for j in 0..6 {

@@ -30,6 +30,7 @@ pub struct Config {
     pub refine: RefineSection,
     pub maps: MapsSection,
     pub render: RenderSection,
+    pub checkpoint: CheckpointSection,
 }
 
 /// Shading refinement and the alternation (paper §4.3; reference §2.5–2.6).
@@ -80,6 +81,7 @@ impl Default for Config {
             refine: RefineSection::default(),
             maps: MapsSection::default(),
             render: RenderSection::default(),
+            checkpoint: CheckpointSection::default(),
         }
     }
 }
@@ -282,6 +284,21 @@ impl Default for RenderSection {
     }
 }
 
+/// The resumable state of `run` (`pipeline::checkpoint`): how often a running fit saves it.
+/// Changes no result.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CheckpointSection {
+    /// Save the running fit every this many steps (0: only when it ends and on Ctrl-C).
+    pub every_steps: usize,
+}
+
+impl Default for CheckpointSection {
+    fn default() -> Self {
+        Self { every_steps: 100 }
+    }
+}
+
 fn check(ok: bool, key: &str, what: &str) -> Result<()> {
     if !ok {
         bail!("{key}: {what}");
@@ -410,6 +427,7 @@ impl Config {
             "train.grid.per_level_scale",
             "must be >= 1",
         )?;
+        g.check().map_err(|e| anyhow::anyhow!("train.{e}"))?;
         if let MaxResolution::Fixed(r) = g.max_resolution {
             check(
                 r.is_finite() && r >= 1.0,

@@ -70,7 +70,10 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
     let mut maps = MapKind::FIPT.to_vec();
     maps.extend([MapKind::BaseColor, MapKind::Metallic, MapKind::Relight]);
     let ds = Dataset::load(scene, &LoadOptions { maps, val: true })?;
-    let img_dir = out.join("report");
+    // The images go into a staged folder that replaces `report/` whole.
+    let img_final = out.join("report");
+    let img_dir = crate::scene_model::sibling(&img_final, "tmp");
+    let _ = std::fs::remove_dir_all(&img_dir);
     std::fs::create_dir_all(&img_dir)
         .with_context(|| format!("{}: cannot create", img_dir.display()))?;
     let mut h = String::new();
@@ -103,6 +106,7 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
     loss_curves(&mut h, &run);
     sheet(&mut h, out, &img_dir)?;
     h.push_str("</body></html>\n");
+    crate::scene_model::replace_dir(&img_dir, &img_final)?;
     let page = out.join("report.html");
     fipt_core::io::write_bytes_atomic(&page, h.as_bytes())?;
     Ok(page)
@@ -174,20 +178,13 @@ fn metric_tables(h: &mut String, run: &RunReport, ds: &Dataset) {
 }
 
 fn times(h: &mut String, run: &RunReport) {
-    let t = &run.time_s;
+    h.push_str("<h2>Time and memory</h2><table><tr><th>stage</th><th>seconds</th></tr>");
+    for (k, v) in run.time_s.rows() {
+        let _ = write!(h, "<tr><td>{k}</td><td>{v:.1}</td></tr>");
+    }
     let _ = write!(
         h,
-        "<h2>Time and memory</h2><table><tr><th>stage</th><th>seconds</th></tr>\
-<tr><td>load</td><td>{:.1}</td></tr><tr><td>bake</td><td>{:.1}</td></tr><tr><td>fit (all rounds)</td><td>{:.1}</td></tr>\
-<tr><td>emitters</td><td>{:.1}</td></tr><tr><td>refinement (all rounds)</td><td>{:.1}</td></tr><tr><td>maps</td><td>{:.1}</td></tr>\
-<tr><td>val re-renders</td><td>{:.1}</td></tr><tr><td>peak memory (MB)</td><td>{}</td></tr></table>",
-        t.load_s,
-        t.bake_s,
-        t.train_s,
-        t.emitters_s,
-        t.refine_s,
-        t.maps_s,
-        t.render_s,
+        "<tr><td>peak memory (MB)</td><td>{}</td></tr></table>",
         num(run.peak_rss_mb, 0)
     );
 }

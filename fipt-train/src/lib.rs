@@ -10,6 +10,7 @@ pub mod check;
 pub mod config;
 pub mod demo;
 pub mod html_report;
+pub mod interrupt;
 pub mod learned;
 pub mod metrics;
 pub mod output;

@@ -333,6 +333,10 @@ fn main() {
         out: PathBuf::from("demo"),
         quiet: false,
     });
+    // Ctrl-C asks the long commands to stop at a safe point (`interrupt`).
+    if matches!(cmd, Cmd::Demo { .. } | Cmd::Run { .. }) {
+        fipt_train::interrupt::install();
+    }
     let res = match cmd {
         // Without --quiet the run has printed the report's path as its last line already.
         Cmd::Demo { out, quiet } => fipt_train::demo::demo(&out, quiet).map(|p| {
@@ -574,6 +578,10 @@ fn main() {
         },
     };
     if let Err(e) = res {
+        if let Some(i) = e.downcast_ref::<fipt_train::interrupt::Interrupted>() {
+            eprintln!("{i}");
+            std::process::exit(130);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }

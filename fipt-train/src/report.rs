@@ -95,6 +95,25 @@ pub struct StageTimes {
     /// The val re-renders (view synthesis and relighting).
     #[serde(default)]
     pub render_s: f64,
+    /// Saving the fits' checkpoints (part of `train_s`).
+    #[serde(default)]
+    pub checkpoint_s: f64,
+}
+
+impl StageTimes {
+    /// (stage, seconds) in the pipeline's order, for the printed and HTML reports.
+    pub fn rows(&self) -> [(&'static str, f64); 8] {
+        [
+            ("load", self.load_s),
+            ("bake", self.bake_s),
+            ("fit (all rounds)", self.train_s),
+            ("of which checkpoints", self.checkpoint_s),
+            ("emitters", self.emitters_s),
+            ("refinement (all rounds)", self.refine_s),
+            ("maps", self.maps_s),
+            ("val re-renders", self.render_s),
+        ]
+    }
 }
 
 /// The re-renders of the val views by `run`: view synthesis against `val/Image` and
@@ -213,6 +232,9 @@ pub struct RunReport {
     /// The scene model folder (`OUT/model`) and, where registered, its zoo entry.
     pub model_dir: Option<String>,
     pub zoo_entry: Option<String>,
+    /// Where this run continued an interrupted one (`pipeline::checkpoint`), if it did.
+    #[serde(default)]
+    pub resumed: Option<String>,
 }
 
 /// `eval.json`: the scores recomputed from saved maps.
@@ -285,11 +307,13 @@ impl RunReport {
                 f(self.relight_psnr)
             );
         }
-        let t = &self.time_s;
-        println!(
-            "\nstage times: load {:.1} s, bake {:.1} s, train {:.1} s, emitters {:.1} s, refine {:.1} s, maps {:.1} s, render {:.1} s",
-            t.load_s, t.bake_s, t.train_s, t.emitters_s, t.refine_s, t.maps_s, t.render_s
-        );
+        let times: Vec<String> = self
+            .time_s
+            .rows()
+            .iter()
+            .map(|(k, v)| format!("{k} {v:.1} s"))
+            .collect();
+        println!("\nstage times: {}", times.join(", "));
         println!(
             "{} emitter triangles; peak RSS {}; outputs in {}",
             self.emitters,

@@ -241,13 +241,13 @@ pub fn save(
     }
 }
 
-/// `dir` with `.name.<tag>-<pid>` as its last component (same parent, so renames stay on one
-/// file system).
+/// `dir` with `.name.<tag>-<pid>.tmp` as its last component (same parent, so renames stay on
+/// one file system; the `.tmp` ending marks it as a temporary a later run may remove).
 pub(crate) fn sibling(dir: &Path, tag: &str) -> PathBuf {
     let name = dir
         .file_name()
         .map_or("folder".into(), |n| n.to_string_lossy().into_owned());
-    dir.with_file_name(format!(".{name}.{tag}-{}", std::process::id()))
+    dir.with_file_name(format!(".{name}.{tag}-{}.tmp", std::process::id()))
 }
 
 /// Moves the complete folder `from` to `to`, replacing `to`: the old folder is first renamed

@@ -205,14 +205,15 @@ pub struct BakeOutput {
     pub rays: u64,
 }
 
-/// Bakes (and filters) every view; `progress(k)` is called after view k.
+/// Bakes (and filters) every view; `progress(k)` is called after view k and returns whether
+/// to go on: `false` stops the bake, which then returns None (nothing partial).
 pub fn bake_views(
     accel: &Accel,
     lf: &LightField,
     views: &[BakeView],
     cfg: &BakeConfig,
-    progress: &(dyn Fn(usize) + Sync),
-) -> BakeOutput {
+    progress: &(dyn Fn(usize) -> bool + Sync),
+) -> Option<BakeOutput> {
     let baker = Baker {
         accel,
         lf,
@@ -220,25 +221,24 @@ pub fn bake_views(
     };
     let groups = filter_groups(&cfg.filter);
     let mut rays = 0;
-    let shadings = views
-        .iter()
-        .enumerate()
-        .map(|(k, v)| {
-            let (mut s, r) = baker.bake_view(v.hits, cfg.seed, k as u64);
-            rays += r;
-            crate::filter::filter_view(
-                &cfg.filter,
-                v.hits,
-                v.focal,
-                &mut s,
-                ShadingLayout::DIM,
-                &groups,
-            );
-            progress(k);
-            s
-        })
-        .collect();
-    BakeOutput { shadings, rays }
+    let mut shadings = Vec::with_capacity(views.len());
+    for (k, v) in views.iter().enumerate() {
+        let (mut s, r) = baker.bake_view(v.hits, cfg.seed, k as u64);
+        rays += r;
+        crate::filter::filter_view(
+            &cfg.filter,
+            v.hits,
+            v.focal,
+            &mut s,
+            ShadingLayout::DIM,
+            &groups,
+        );
+        shadings.push(s);
+        if !progress(k) {
+            return None;
+        }
+    }
+    Some(BakeOutput { shadings, rays })
 }
 
 #[cfg(test)]
@@ -479,7 +479,7 @@ pub(crate) mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| bake_views(&accel, &lf, &views, &cfg, &|_| {}))
+                .install(|| bake_views(&accel, &lf, &views, &cfg, &|_| true).unwrap())
         };
         let (a, b) = (run(1), run(2));
         assert_eq!(a.rays, b.rays);

@@ -29,6 +29,30 @@ pub struct ModelSpec {
     pub scene_box: SceneBox,
 }
 
+impl ModelSpec {
+    /// Range checks before anything is built from a saved spec: the hash grid's
+    /// (`HashGridConfig::check`), networks of at most 1024 units and 32 layers, at most 32
+    /// frequencies, a finite scene box.
+    pub fn check(&self) -> Result<(), String> {
+        self.material.grid.check()?;
+        let m = &self.material;
+        if !(1..=1024).contains(&m.hidden) || !(1..=32).contains(&m.hidden_layers) {
+            return Err("material: hidden must be in [1, 1024], hidden_layers in [1, 32]".into());
+        }
+        let e = &self.emission;
+        if !(1..=1024).contains(&e.width) || !(1..=32).contains(&e.depth) || e.freqs > 32 {
+            return Err(
+                "emission: width must be in [1, 1024], depth in [1, 32], freqs at most 32".into(),
+            );
+        }
+        let b = &self.scene_box;
+        if !(b.min.is_finite() && b.max.is_finite() && b.min < b.max) {
+            return Err("scene_box: min and max must be finite, min < max".into());
+        }
+        Ok(())
+    }
+}
+
 /// The two fields of Eq. 14 and the scene box.
 #[derive(Clone)]
 pub struct FiptModel {
@@ -202,6 +226,8 @@ impl FiptModel {
             .map_err(|e| format!("{}: cannot read: {e}", spec_path.display()))?;
         let spec: ModelSpec = serde_json::from_str(&text)
             .map_err(|e| format!("{}: malformed: {e}", spec_path.display()))?;
+        spec.check()
+            .map_err(|e| format!("{}: {e}", spec_path.display()))?;
         let mut model = Self::init(spec, device, 0);
         let nets_path = dir.join(NETS_FILE);
         if !nets_path.is_file() {

@@ -158,6 +158,45 @@ pub struct HashGrid {
 const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 
 impl HashGridConfig {
+    /// The finest level's resolution `init` may build (a cube of 2^20 cells a side).
+    pub const MAX_RESOLUTION: f64 = (1u64 << 20) as f64;
+
+    /// Range checks that keep `init` finite and bounded (a saved model's sizes may be
+    /// damaged): levels in [1, 64], features in [1, 8], log2_table in [1, 24], base resolution
+    /// and per-level scale finite and >= 1, the finest level at most `MAX_RESOLUTION`; the
+    /// reason names the key (`grid.levels: ...`).
+    pub fn check(&self) -> Result<(), String> {
+        let fail = |k: &str, what: &str| Err(format!("grid.{k}: {what}"));
+        if !(1..=64).contains(&self.levels) {
+            return fail("levels", "must be in [1, 64]");
+        }
+        if !(1..=8).contains(&self.features) {
+            return fail("features", "must be in [1, 8]");
+        }
+        if !(1..=24).contains(&self.log2_table) {
+            return fail("log2_table", "must be in [1, 24]");
+        }
+        if !(self.base_resolution.is_finite() && self.base_resolution >= 1.0) {
+            return fail("base_resolution", "must be finite and >= 1");
+        }
+        if !(self.per_level_scale.is_finite() && self.per_level_scale >= 1.0) {
+            return fail("per_level_scale", "must be finite and >= 1");
+        }
+        let finest = self.base_resolution * self.per_level_scale.powi(self.levels as i32 - 1);
+        if finest > Self::MAX_RESOLUTION {
+            return fail(
+                "per_level_scale",
+                "base_resolution × per_level_scale^(levels − 1) must be at most 2^20",
+            );
+        }
+        if let MaxResolution::Fixed(r) = self.max_resolution
+            && !(r.is_finite() && r >= 1.0)
+        {
+            return fail("max_resolution", "must be finite and >= 1");
+        }
+        Ok(())
+    }
+
     /// Builds the level layout and a table initialised from `seed`.
     pub fn init(&self, seed: u64) -> HashGrid {
         let max = 1usize << self.log2_table;

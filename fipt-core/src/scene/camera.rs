@@ -121,20 +121,23 @@ impl Camera {
 
     /// The camera-to-world matrix in the FIPT synthetic convention (left, up, forward).
     pub fn to_fipt_c2w(&self) -> [[f64; 4]; 4] {
-        let c = [
+        c2w_of([
             -self.rotation.x_axis,
             -self.rotation.y_axis,
             self.rotation.z_axis,
             self.origin,
-        ];
-        let mut m = [[0.0; 4]; 4];
-        for (j, v) in c.iter().enumerate() {
-            m[0][j] = v.x;
-            m[1][j] = v.y;
-            m[2][j] = v.z;
-        }
-        m[3][3] = 1.0;
-        m
+        ])
+    }
+
+    /// The camera-to-world matrix in the nerfstudio / OpenGL convention (right, up, back;
+    /// what `from_opengl_c2w` reads).
+    pub fn to_opengl_c2w(&self) -> [[f64; 4]; 4] {
+        c2w_of([
+            self.rotation.x_axis,
+            -self.rotation.y_axis,
+            -self.rotation.z_axis,
+            self.origin,
+        ])
     }
 
     /// A camera at `eye` looking at `target` with the given up vector and horizontal FOV.
@@ -162,6 +165,18 @@ fn normalize_columns(m: DMat3) -> DMat3 {
         m.y_axis.normalize(),
         m.z_axis.normalize(),
     )
+}
+
+/// A 4×4 camera-to-world matrix of three axis columns and the position.
+fn c2w_of(c: [DVec3; 4]) -> [[f64; 4]; 4] {
+    let mut m = [[0.0; 4]; 4];
+    for (j, v) in c.iter().enumerate() {
+        m[0][j] = v.x;
+        m[1][j] = v.y;
+        m[2][j] = v.z;
+    }
+    m[3][3] = 1.0;
+    m
 }
 
 #[cfg(test)]

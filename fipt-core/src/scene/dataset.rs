@@ -550,7 +550,8 @@ fn parse_triples(path: &Path) -> Result<Vec<[f64; 3]>> {
         .trim()
         .parse()
         .map_err(|_| FileError::new(path, format!("line 1: expected a count, found '{first}'")))?;
-    let mut rows = Vec::with_capacity(3 * n);
+    // `n` comes from the file: nothing is sized by it (a damaged count once asked for 309 GB).
+    let mut rows = Vec::new();
     for (ln, l) in lines {
         let vals: Vec<f64> = l
             .split_whitespace()
@@ -565,12 +566,12 @@ fn parse_triples(path: &Path) -> Result<Vec<[f64; 3]>> {
         }
         rows.push([vals[0], vals[1], vals[2]]);
     }
-    if rows.len() != 3 * n {
+    if n.checked_mul(3) != Some(rows.len()) {
         return Err(FileError::new(
             path,
             format!(
                 "header says {n} cameras ({} lines) but {} lines follow",
-                3 * n,
+                n.saturating_mul(3),
                 rows.len()
             ),
         ));

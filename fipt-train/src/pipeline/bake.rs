@@ -36,20 +36,27 @@ pub fn bake(
     train: &Split,
     cfg: &BakeConfig,
     show_progress: bool,
-) -> Baked {
+) -> anyhow::Result<Baked> {
     let hits = cast_split(accel, mesh, train);
     let views = train_views(train, &hits);
     let light_field = build_light_field(&views, cfg.voxel_res);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
-    let baked = bake_views(accel, &light_field, &views, cfg, &|_| pb.inc(1));
+    // Ctrl-C stops after the current view (`interrupt`).
+    let baked = bake_views(accel, &light_field, &views, cfg, &|_| {
+        pb.inc(1);
+        !crate::interrupt::requested()
+    });
     pb.finish_and_clear();
     drop(views);
-    Baked {
+    let baked = baked.ok_or_else(|| {
+        crate::interrupt::Interrupted("interrupted during the bake (nothing of it saved)".into())
+    })?;
+    Ok(Baked {
         hits,
         light_field,
         shadings: baked.shadings,
         rays: baked.rays,
-    }
+    })
 }
 
 /// The bake with the on-disk cache: loads `out/cache/shadings.bin` when its key matches, else
@@ -79,7 +86,7 @@ pub fn bake_cached(
             true,
         ));
     }
-    let baked = bake(accel, &ds.mesh, &ds.train, cfg, show_progress);
+    let baked = bake(accel, &ds.mesh, &ds.train, cfg, show_progress)?;
     crate::cache::save(&path, key, w, h, &baked.shadings)?;
     Ok((baked, false))
 }

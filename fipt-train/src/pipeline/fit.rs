@@ -12,6 +12,7 @@ use fipt_core::model::{LossParts, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
 use fipt_core::scene::SceneBox;
 use fipt_core::shading::ShadingLayout;
+use std::path::Path;
 
 /// The reflected radiance the trained BRDF predicts from the stored shadings at every stored
 /// pixel, scattered back into per-view images (3 floats per pixel, zeros at misses).
@@ -111,30 +112,38 @@ pub struct FitPlan {
 }
 
 /// Draws batch indices: shuffled epochs over all pixels, and the balanced share by segment.
+#[derive(Clone, Debug)]
 struct Sampler {
     rng: Rng,
+    /// The current permutation of all pixels (each epoch shuffles the last one further).
     order: Vec<u32>,
+    /// Position in `order`; past its end, the next draw shuffles first.
     next: usize,
-    /// Pixel indices of each segment.
+    /// Pixel indices of each segment (derived from the store, not saved).
     segments: Vec<Vec<u32>>,
 }
 
+const SAMPLER_MAGIC: &[u8; 8] = b"FIPTSMP1";
+
 impl Sampler {
     fn new(store: &PixelStore, seed: u64, balanced: bool) -> Self {
-        let mut segments = Vec::new();
-        if balanced {
-            let mut by: std::collections::BTreeMap<i32, Vec<u32>> = Default::default();
-            for (i, &s) in store.pixels.seg.iter().enumerate() {
-                by.entry(s).or_default().push(i as u32);
-            }
-            segments = by.into_values().collect();
-        }
         Self {
             rng: Rng::new(seed, 0x7a1),
             order: (0..store.len() as u32).collect(),
             next: usize::MAX,
-            segments,
+            segments: Self::segments_of(store, balanced),
         }
+    }
+
+    fn segments_of(store: &PixelStore, balanced: bool) -> Vec<Vec<u32>> {
+        if !balanced {
+            return Vec::new();
+        }
+        let mut by: std::collections::BTreeMap<i32, Vec<u32>> = Default::default();
+        for (i, &s) in store.pixels.seg.iter().enumerate() {
+            by.entry(s).or_default().push(i as u32);
+        }
+        by.into_values().collect()
     }
 
     /// `uniform` pixels in epoch order (a new permutation whenever one is used up), then
@@ -155,6 +164,191 @@ impl Sampler {
                 let s = &self.segments[self.rng.below(self.segments.len() as u64) as usize];
                 out.push(s[self.rng.below(s.len() as u64) as usize]);
             }
+        }
+    }
+
+    /// The saved state: magic, RNG state, position, order length, the order (little-endian).
+    fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::with_capacity(32 + 4 * self.order.len());
+        b.extend_from_slice(SAMPLER_MAGIC);
+        b.extend_from_slice(&self.rng.state().to_le_bytes());
+        b.extend_from_slice(&(self.next as u64).to_le_bytes());
+        b.extend_from_slice(&(self.order.len() as u64).to_le_bytes());
+        for i in &self.order {
+            b.extend_from_slice(&i.to_le_bytes());
+        }
+        b
+    }
+
+    /// The sampler `to_bytes` saved, for a store of `pixels` pixels; the reason when the bytes
+    /// are not one (wrong magic, size, length, or an order that is not a permutation).
+    fn from_bytes(b: &[u8], store: &PixelStore, balanced: bool) -> Result<Self, String> {
+        if b.len() < 32 || &b[..8] != SAMPLER_MAGIC {
+            return Err("not a fipt sampler state".into());
+        }
+        let word = |i: usize| u64::from_le_bytes(b[8 + 8 * i..16 + 8 * i].try_into().unwrap());
+        let (state, next, n) = (word(0), word(1), word(2));
+        if n != store.len() as u64 || b.len() as u64 != 32 + 4 * n {
+            return Err(format!(
+                "holds {n} pixels in {} bytes, the fit has {}",
+                b.len(),
+                store.len()
+            ));
+        }
+        let order: Vec<u32> = b[32..]
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        let mut seen = vec![false; order.len()];
+        for &i in &order {
+            match seen.get_mut(i as usize) {
+                Some(s) if !*s => *s = true,
+                _ => return Err("the pixel order is not a permutation".into()),
+            }
+        }
+        let next = if next == u64::MAX {
+            usize::MAX
+        } else if next <= n {
+            next as usize
+        } else {
+            return Err(format!("position {next} past the {n} pixels"));
+        };
+        Ok(Self {
+            rng: Rng::from_state(state),
+            order,
+            next,
+            segments: Self::segments_of(store, balanced),
+        })
+    }
+}
+
+/// Everything of a running fit besides the trainer: the step, the loss log so far and the
+/// batch sampler (RNG state and pixel order). With the trainer's own state
+/// (`Trainer::save_state`) it continues the fit exactly (`fit_resumable`).
+#[derive(Clone, Debug)]
+pub struct FitProgress {
+    /// Steps done.
+    pub step: usize,
+    /// Steps of the whole fit.
+    pub total: usize,
+    pub log: TrainLog,
+    /// Loss sums of the current epoch, and its steps so far.
+    sum: LossParts,
+    in_epoch: usize,
+    sampler: Sampler,
+}
+
+/// The JSON part of `FitProgress` (the sampler goes into its own binary file).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct ProgressFile {
+    step: usize,
+    total: usize,
+    log: TrainLog,
+    sum: LossParts,
+    in_epoch: usize,
+}
+
+const PROGRESS_FILE: &str = "progress.json";
+const SAMPLER_FILE: &str = "sampler.bin";
+
+impl FitProgress {
+    /// Whether every step has run.
+    pub fn done(&self) -> bool {
+        self.step >= self.total
+    }
+
+    /// Writes `progress.json` and `sampler.bin` into `dir`, each atomically.
+    pub fn save(&self, dir: &Path) -> anyhow::Result<()> {
+        let p = ProgressFile {
+            step: self.step,
+            total: self.total,
+            log: self.log.clone(),
+            sum: self.sum,
+            in_epoch: self.in_epoch,
+        };
+        crate::output::write_json(&dir.join(PROGRESS_FILE), &p)?;
+        fipt_core::io::write_bytes_atomic(&dir.join(SAMPLER_FILE), &self.sampler.to_bytes())?;
+        Ok(())
+    }
+
+    /// Only the loss log of the progress `save` wrote into `dir`.
+    pub fn load_log(dir: &Path) -> anyhow::Result<TrainLog> {
+        let path = dir.join(PROGRESS_FILE);
+        let p: ProgressFile = serde_json::from_str(&fipt_core::io::read_text(&path)?)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(p.log)
+    }
+
+    /// The progress `save` wrote into `dir`, for a fit over `store` with `schedule`; an error
+    /// naming the file when it is damaged or belongs to another fit.
+    pub fn load(
+        dir: &Path,
+        store: &PixelStore,
+        mode: SegMode,
+        schedule: &Schedule,
+    ) -> anyhow::Result<Self> {
+        let path = dir.join(PROGRESS_FILE);
+        let p: ProgressFile = serde_json::from_str(&fipt_core::io::read_text(&path)?)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let shape = Shape::of(store, mode, schedule);
+        // The last step closes a partial epoch.
+        let (epochs, in_epoch) = if p.step == shape.steps {
+            (p.step.div_ceil(shape.steps_per_epoch), 0)
+        } else {
+            (
+                p.step / shape.steps_per_epoch,
+                p.step % shape.steps_per_epoch,
+            )
+        };
+        let log_ok = p.log.step_total.len() == p.step
+            && p.log.epochs.len() == epochs
+            && p.in_epoch == in_epoch;
+        if p.total != shape.steps || p.step > p.total || !log_ok {
+            anyhow::bail!(
+                "{}: step {} of {} does not fit this fit ({} steps) or its log",
+                path.display(),
+                p.step,
+                p.total,
+                shape.steps
+            );
+        }
+        let spath = dir.join(SAMPLER_FILE);
+        let sampler = Sampler::from_bytes(
+            &fipt_core::io::read_bytes(&spath)?,
+            store,
+            shape.balanced > 0,
+        )
+        .map_err(|e| anyhow::anyhow!("{}: {e}", spath.display()))?;
+        Ok(Self {
+            step: p.step,
+            total: p.total,
+            log: p.log,
+            sum: p.sum,
+            in_epoch: p.in_epoch,
+            sampler,
+        })
+    }
+}
+
+/// The batch sizes and step counts of a fit over a store.
+struct Shape {
+    batch: usize,
+    balanced: usize,
+    steps: usize,
+    steps_per_epoch: usize,
+}
+
+impl Shape {
+    fn of(store: &PixelStore, mode: SegMode, schedule: &Schedule) -> Self {
+        let batch = schedule.batch.min(store.len()).max(1);
+        let balanced = ((schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize)
+            .min(batch)
+            * usize::from(mode != SegMode::None);
+        Self {
+            batch,
+            balanced,
+            steps: schedule.steps(store.len()),
+            steps_per_epoch: store.len().div_ceil(batch).max(1),
         }
     }
 }
@@ -179,63 +373,103 @@ pub fn fit(
 
 /// Runs the schedule on an existing trainer (a warm start).
 pub fn fit_more(
-    mut tr: Trainer,
+    tr: Trainer,
     store: &PixelStore,
     mode: SegMode,
     schedule: &Schedule,
     seed: u64,
     show_progress: bool,
 ) -> (Trainer, TrainLog) {
-    let batch = schedule.batch.min(store.len()).max(1);
-    let steps = schedule.steps(store.len());
-    let balanced = ((schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize).min(batch)
-        * usize::from(mode != SegMode::None);
-    let mut sampler = Sampler::new(store, seed, balanced > 0);
-    let steps_per_epoch = store.len().div_ceil(batch).max(1);
-    let pb = progress_bar(steps as u64, "train", show_progress);
-    let mut log = TrainLog::default();
-    let mut sum = LossParts::default();
-    let mut in_epoch = 0;
-    let mut idx = Vec::with_capacity(batch);
+    let run = FitRun {
+        mode,
+        schedule,
+        seed,
+        show_progress,
+    };
+    match fit_resumable(tr, store, &run, None, &mut |_, _| Ok(())) {
+        Ok((tr, p)) => (tr, p.log),
+        Err(_) => unreachable!("a fit without an observer does not fail"),
+    }
+}
+
+/// How a fit runs besides its trainer and pixels.
+pub struct FitRun<'a> {
+    pub mode: SegMode,
+    pub schedule: &'a Schedule,
+    pub seed: u64,
+    pub show_progress: bool,
+}
+
+/// Runs the schedule on `tr`, from the start or from `resume` (the progress saved with `tr`'s
+/// state), calling `after_step` after every step with the trainer and the progress: the place
+/// to save a checkpoint, or to stop the fit by returning an error. `tr` must hold the step's
+/// base config (the schedule sets the learning rate and λ_d of each step from it).
+pub fn fit_resumable(
+    mut tr: Trainer,
+    store: &PixelStore,
+    run: &FitRun,
+    resume: Option<FitProgress>,
+    after_step: &mut dyn FnMut(&Trainer, &FitProgress) -> anyhow::Result<()>,
+) -> anyhow::Result<(Trainer, FitProgress)> {
+    let schedule = run.schedule;
+    let shape = Shape::of(store, run.mode, schedule);
+    let mut p = resume.unwrap_or_else(|| FitProgress {
+        step: 0,
+        total: shape.steps,
+        log: TrainLog::default(),
+        sum: LossParts::default(),
+        in_epoch: 0,
+        sampler: Sampler::new(store, run.seed, shape.balanced > 0),
+    });
+    let pb = progress_bar(shape.steps as u64, "train", run.show_progress);
+    pb.set_position(p.step as u64);
+    let mut idx = Vec::with_capacity(shape.batch);
     let lambda_d = tr.cfg.lambda_d;
-    for s in 0..steps {
-        sampler.draw(batch - balanced, balanced, &mut idx);
-        tr.cfg.lr = schedule.lr_at(s, steps);
-        tr.cfg.lambda_d = lambda_d * schedule.lambda_d_at(s, steps);
-        let l = tr.step(&store.batch(&idx), mode);
-        log.step_total.push(l.total);
-        sum.total += l.total;
-        sum.color += l.color;
-        sum.emission += l.emission;
-        sum.diffuse += l.diffuse;
-        sum.seg += l.seg;
-        in_epoch += 1;
-        if in_epoch == steps_per_epoch || s + 1 == steps {
-            let n = in_epoch as f32;
-            log.epochs.push(LossParts {
-                total: sum.total / n,
-                color: sum.color / n,
-                emission: sum.emission / n,
-                diffuse: sum.diffuse / n,
-                seg: sum.seg / n,
+    while p.step < shape.steps {
+        let s = p.step;
+        p.sampler
+            .draw(shape.batch - shape.balanced, shape.balanced, &mut idx);
+        tr.cfg.lr = schedule.lr_at(s, shape.steps);
+        tr.cfg.lambda_d = lambda_d * schedule.lambda_d_at(s, shape.steps);
+        let l = tr.step(&store.batch(&idx), run.mode);
+        tr.cfg.lambda_d = lambda_d;
+        p.log.step_total.push(l.total);
+        p.sum.total += l.total;
+        p.sum.color += l.color;
+        p.sum.emission += l.emission;
+        p.sum.diffuse += l.diffuse;
+        p.sum.seg += l.seg;
+        p.in_epoch += 1;
+        if p.in_epoch == shape.steps_per_epoch || s + 1 == shape.steps {
+            let n = p.in_epoch as f32;
+            p.log.epochs.push(LossParts {
+                total: p.sum.total / n,
+                color: p.sum.color / n,
+                emission: p.sum.emission / n,
+                diffuse: p.sum.diffuse / n,
+                seg: p.sum.seg / n,
             });
-            sum = LossParts::default();
-            in_epoch = 0;
+            p.sum = LossParts::default();
+            p.in_epoch = 0;
         }
+        p.step += 1;
         pb.set_message(format!("loss {:.4}", l.total));
         pb.inc(1);
+        if let Err(e) = after_step(&tr, &p) {
+            pb.finish_and_clear();
+            return Err(e);
+        }
     }
     pb.finish_and_clear();
-    tr.cfg.lambda_d = lambda_d;
-    (tr, log)
+    Ok((tr, p))
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use fipt_core::model::Batch;
 
-    fn store(seg: &[i32]) -> PixelStore {
+    pub(crate) fn store(seg: &[i32]) -> PixelStore {
         let n = seg.len();
         PixelStore {
             pixels: Batch {
@@ -247,6 +481,100 @@ mod tests {
             },
             origin: (0..n as u32).map(|i| (0, i)).collect(),
         }
+    }
+
+    /// `n` pixels of five segments with varied positions, shadings and colours.
+    pub(crate) fn toy_store(n: usize) -> PixelStore {
+        let seg: Vec<i32> = (0..n).map(|i| (i % 5) as i32).collect();
+        let mut st = store(&seg);
+        for i in 0..n {
+            let t = i as f32 / n as f32;
+            st.pixels.x_unit[i] = [t, (3.0 * t).fract(), (7.0 * t).fract()];
+            for c in 0..ShadingLayout::DIM {
+                st.pixels.shadings[i * ShadingLayout::DIM + c] =
+                    0.2 + 0.5 * ((i + c) % 7) as f32 / 7.0;
+            }
+            st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&[0.3 + 0.4 * t, 0.5, 0.2]);
+        }
+        st
+    }
+
+    /// A small model and a 25-step schedule.
+    pub(crate) fn toy_fit() -> (fipt_core::model::TrainConfig, Schedule) {
+        let mut train = crate::config::Config::default().train;
+        train.grid.log2_table = 8;
+        train.mlp_hidden = 16;
+        train.emission_width = 16;
+        train.emission_depth = 2;
+        let schedule = Schedule {
+            min_steps: 25,
+            balance: 0.25,
+            ..Schedule::reference(1, 64, 1e-2)
+        };
+        (train.model_config(3), schedule)
+    }
+
+    /// A fit stopped after some steps, saved (`Checkpoints::save`), restored and continued
+    /// ends bit-identical to the uninterrupted fit: the same table, networks and loss log; a
+    /// sampler state of another store is refused with the file named.
+    #[test]
+    fn interrupted_fit_continues_exactly() {
+        use crate::pipeline::checkpoint::Checkpoints;
+        let build = toy_store;
+        let st = build(600);
+        let (cfg, schedule) = toy_fit();
+        let device = burn::tensor::Device::flex();
+        let scene_box = SceneBox { min: 0.0, max: 1.0 };
+        let run = FitRun {
+            mode: SegMode::Part,
+            schedule: &schedule,
+            seed: 3,
+            show_progress: false,
+        };
+        let fresh = || Trainer::new(cfg.clone(), scene_box, &device, 3);
+        let (whole, pw) = fit_resumable(fresh(), &st, &run, None, &mut |_, _| Ok(())).unwrap();
+
+        let dir = std::env::temp_dir().join(format!("fipt-fit-resume-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let ck = Checkpoints {
+            dir: dir.clone(),
+            every: 0,
+        };
+        let e = fit_resumable(fresh(), &st, &run, None, &mut |tr, p| {
+            if p.step == 11 {
+                ck.save(0, tr, p)?;
+                anyhow::bail!("stop");
+            }
+            Ok(())
+        });
+        assert!(e.is_err());
+        let of = |store| crate::pipeline::checkpoint::FitOf {
+            cfg: &cfg,
+            device: &device,
+            seed: 3,
+            store,
+            run: &run,
+        };
+        let c = ck.restore(0, &of(&st)).unwrap().expect("a saved state");
+        assert_eq!(c.progress.step, 11);
+        let (resumed, pr) =
+            fit_resumable(c.trainer, &st, &run, Some(c.progress), &mut |_, _| Ok(())).unwrap();
+        assert_eq!(pw.log.step_total, pr.log.step_total);
+        assert_eq!(whole.model.grid.table, resumed.model.grid.table);
+        assert_eq!(whole.model.net_params(), resumed.model.net_params());
+
+        // Another store (one pixel fewer) does not take this sampler state.
+        let small = build(599);
+        let e = ck
+            .restore(0, &of(&small))
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(
+            e.contains("sampler.bin") || e.contains("progress.json"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// The reference schedule: epochs × ceil(N/B) steps at a constant rate; the floor and the

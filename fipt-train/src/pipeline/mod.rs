@@ -16,6 +16,7 @@
 
 pub mod bake;
 pub mod bake_job;
+pub mod checkpoint;
 pub mod evaluate;
 pub mod extract;
 pub mod fit;
@@ -200,23 +201,54 @@ pub fn landscapes(
     Ok(tables)
 }
 
+/// The one-line message of a run stopped by Ctrl-C at a stage boundary.
+fn stopped(out: &Path, after: &str) -> String {
+    format!(
+        "interrupted {after}; what is done is saved in {}: run the same command again to continue",
+        out.display()
+    )
+}
+
+/// A round's report in its checkpoint folder.
+const ROUND_REPORT: &str = "report.json";
+/// Round 0's emitters in its checkpoint folder.
+const ROUND_EMITTERS: &str = "emitters.json";
+
 /// `run`; with `oracle`, round 0 fits the oracle shadings (path-traced with the true materials
 /// and emitters, see `refine::oracle`) instead of the baked ones and no refinement follows: the
 /// ceiling of the factorised model.
+///
+/// Resumable: the fits save their state in `OUT/checkpoint` (see `checkpoint`), and a second
+/// call with the same scene, config and program continues from there with the same results.
 pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Result<RunReport> {
     let (quiet, oracle) = (opts.quiet, opts.oracle);
     let mut times = StageTimes::default();
     let mut t = Instant::now();
     let ds = Dataset::load(scene, &load_opts())?;
     let accel = Accel::build(&ds.mesh);
+    let mut bake_cfg = cfg.bake.clone();
+    bake_cfg.seed = cfg.seed;
+    let bake_key = crate::cache::cache_key(&ds, &bake_cfg);
+    // What an earlier, killed or interrupted, run saved (stale temporaries and state saved
+    // under another scene, config or program are removed first).
+    let run_key = checkpoint::RunKey::new(
+        checkpoint::program_hash(),
+        checkpoint::scene_hash(&ds, bake_key),
+        cfg,
+        oracle,
+    );
+    let (ck, discarded) = checkpoint::Checkpoints::open(out, &run_key, cfg.checkpoint.every_steps)?;
+    if let Some(d) = discarded {
+        eprintln!("{d}");
+    }
     times.load_s = lap(&mut t);
     write_json(&out.join("config.json"), cfg)?;
 
     // (1) Bake L′ and the shadings.
-    let mut bake_cfg = cfg.bake.clone();
-    bake_cfg.seed = cfg.seed;
-    let (mut baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
-    let bake_key = crate::cache::cache_key(&ds, &bake_cfg);
+    let (mut baked, cached) =
+        bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet).map_err(|e| {
+            crate::interrupt::reword(e, || stopped(out, "during the bake (it restarts)"))
+        })?;
     let rounds_total = if oracle {
         baked.shadings = oracle_cached(scene, out, &ds, &accel, &baked, bake_key, cfg, quiet)?;
         0
@@ -224,115 +256,251 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         cfg.refine.rounds
     };
     times.bake_s = lap(&mut t);
+    crate::interrupt::check(|| stopped(out, "after the bake"))?;
 
-    // (2) Fit the material field and the emission mask to the photos.
+    // (2) Fit the material field and the emission mask to the photos; (3) extract the
+    // emitters; (4) refine the shadings by path tracing with the current estimate and fit
+    // again, `rounds_total` times.
     let mode = cfg.train.seg_mode(
         ds.train.has_map(MapKind::IndexMA),
         ds.train.has_map(MapKind::Segmentation),
     );
     let scene_box = baked.light_field.scene_box;
-    let mut store = pixels::PixelStore::gather(&ds.train, &baked, &scene_box, mode);
     let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
     let footprint = pixels::pixel_footprint(&ds.train, &baked.hits, &scene_box);
     let grid_levels = cfg.train.grid.levels_for(footprint);
     let model_cfg = cfg.train.model_config(grid_levels);
-    let plan = fit::FitPlan {
-        cfg: model_cfg.clone(),
-        scene_box,
-        mode,
-        schedule: cfg.train.schedule(),
-        seed: cfg.seed,
+    let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
+    // Round r's trainer config before its schedule sets the rate and λ_d of each step.
+    let base_cfg = |r: usize| {
+        if r == 0 {
+            model_cfg.clone()
+        } else {
+            model_cfg.clone().with_lambda_d(lambda_d)
+        }
     };
-    let (mut tr, mut log) = fit::fit(&store, plan, &device, !quiet);
-    times.train_s = lap(&mut t);
+    let schedule = cfg.train.schedule();
+    // The first round not finished in the checkpoint: rounds before it are restored.
+    let finished = |r: usize| {
+        ck.fit_done(r)
+            && (r == rounds_total || ck.has(r, ROUND_REPORT))
+            && ck.has(0, ROUND_EMITTERS)
+    };
+    let mut resume = (0..=rounds_total)
+        .find(|&r| !finished(r))
+        .unwrap_or(rounds_total + 1);
+    // What the finished rounds left: their reports, the emitters and the last fit (trainer,
+    // log). A damaged file there discards every saved round, with a message naming it.
+    let restored = || -> Result<_> {
+        let mut rounds: Vec<RoundReport> = Vec::new();
+        for r in 0..resume.min(rounds_total) {
+            rounds.push(ck.get(r, ROUND_REPORT)?.context("round report vanished")?);
+        }
+        let em: Option<Vec<emitters::Emitter>> = ck.get(0, ROUND_EMITTERS)?;
+        let prev = match resume {
+            0 => None,
+            r => Some(ck.restore_trainer(r - 1, &base_cfg(r - 1), &device, cfg.seed)?),
+        };
+        Ok((rounds, em, prev))
+    };
+    let (mut rounds, mut em, mut prev) = match restored() {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("discarded the saved rounds, which are damaged: {e:#}");
+            ck.discard_from(0);
+            resume = 0;
+            (Vec::new(), None, None)
+        }
+    };
+    let mut resumed = match resume {
+        0 => None,
+        r if r > rounds_total => Some(format!("the outputs (all {r} fits restored)")),
+        r => Some(format!("round {r} (the {r} rounds before it restored)")),
+    };
+    if let Some(r) = &resumed
+        && !quiet
+    {
+        eprintln!("resuming at {r} from {}", ck.dir.display());
+    }
+    let mut store: Option<pixels::PixelStore> = None;
+    // What made the current round: its refinement (none for round 0) and its fit.
+    let (mut refine_s, mut refine_stats, mut train_s) = (0.0, None, 0.0);
+    for r in resume..=rounds_total {
+        lap(&mut t);
+        let st = store
+            .get_or_insert_with(|| pixels::PixelStore::gather(&ds.train, &baked, &scene_box, mode));
+        if r > 0 {
+            let (tr_prev, _) = prev.as_ref().context("no previous round")?;
+            let em = em.as_ref().context("no emitters")?;
+            let mut rcfg = cfg.refine.paths.clone();
+            rcfg.seed = cfg.seed ^ ((r as u64) << 32);
+            let key = refine::refine_key(bake_key, &tr_prev.model, em, &rcfg);
+            let path = out.join("cache").join(format!("refine{r}.bin"));
+            let (w, h) = (ds.train.width, ds.train.height);
+            let shadings = match crate::cache::load(&path, key, ds.train.views.len(), w, h)? {
+                Some(s) => {
+                    refine_stats = None;
+                    s
+                }
+                None => {
+                    let all: Vec<usize> = (0..ds.train.views.len()).collect();
+                    let scope = refine::RefineScope {
+                        views: &all,
+                        material_cache: true,
+                    };
+                    let rf = refine::refine(
+                        &ds.mesh,
+                        &accel,
+                        &ds.train,
+                        &baked,
+                        st,
+                        &tr_prev.model,
+                        em,
+                        &rcfg,
+                        &scope,
+                        !quiet,
+                    )
+                    .map_err(|e| {
+                        crate::interrupt::reword(e, || {
+                            stopped(out, &format!("during refinement {r} (it restarts)"))
+                        })
+                    })?;
+                    crate::cache::save(&path, key, w, h, &rf.shadings)?;
+                    refine_stats = Some(rf.stats);
+                    rf.shadings
+                }
+            };
+            st.set_shadings(&shadings);
+            drop(shadings);
+            refine_s = lap(&mut t);
+            times.refine_s += refine_s;
+            crate::interrupt::check(|| stopped(out, &format!("after refinement {r}")))?;
+        }
 
-    // (3) Extract the emitters.
-    let em = extract::extract_emitters(
-        &ds.mesh,
-        &ds.train,
-        &baked,
-        &store,
-        &tr,
-        &cfg.emitters,
-        cfg.seed,
-    );
+        // The fit: from its checkpoint, from the last round's model (warm start) or afresh
+        // from the same initial model as round 0 (the reference, whose seed is fixed), so
+        // that a round differs from the last only by its shadings.
+        let warm = r > 0 && cfg.refine.warm_start;
+        let run = fit::FitRun {
+            mode,
+            schedule: &schedule,
+            seed: if warm {
+                cfg.seed.wrapping_add(r as u64)
+            } else {
+                cfg.seed
+            },
+            show_progress: !quiet,
+        };
+        let base = base_cfg(r);
+        let of = checkpoint::FitOf {
+            cfg: &base,
+            device: &device,
+            seed: cfg.seed,
+            store: st,
+            run: &run,
+        };
+        let (tr0, progress) = match ck.restore_or_discard(r, &of) {
+            Some(c) => {
+                if !quiet && resumed.is_none() {
+                    eprintln!(
+                        "resuming round {r}'s fit at step {} of {} from {}",
+                        c.progress.step,
+                        c.progress.total,
+                        ck.dir.display()
+                    );
+                }
+                resumed.get_or_insert_with(|| {
+                    format!(
+                        "round {r}, step {} of {}",
+                        c.progress.step, c.progress.total
+                    )
+                });
+                (c.trainer, Some(c.progress))
+            }
+            None if warm => {
+                let (mut tr, _) = prev.take().context("no previous round")?;
+                tr.cfg.lambda_d = lambda_d;
+                (tr, None)
+            }
+            None => (
+                fipt_core::model::Trainer::new(base_cfg(r), scene_box, &device, cfg.seed),
+                None,
+            ),
+        };
+        let mut ck_s = 0.0;
+        let (tr, p) = fit::fit_resumable(tr0, st, &run, progress, &mut |tr, p| {
+            let stop = crate::interrupt::requested();
+            if stop || ck.due(p) {
+                let t0 = Instant::now();
+                ck.save(r, tr, p)?;
+                ck_s += t0.elapsed().as_secs_f64();
+            }
+            crate::interrupt::check(|| {
+                format!(
+                    "interrupted: round {r}'s fit saved at step {} of {} in {}; run the same command again to continue",
+                    p.step,
+                    p.total,
+                    ck.dir.display()
+                )
+            })
+        })?;
+        ck.save(r, &tr, &p)?;
+        times.checkpoint_s += ck_s;
+        train_s = lap(&mut t);
+        times.train_s += train_s;
+        crate::interrupt::check(|| stopped(out, &format!("after round {r}'s fit")))?;
+
+        if r == 0 && em.is_none() {
+            let e = extract::extract_emitters(
+                &ds.mesh,
+                &ds.train,
+                &baked,
+                st,
+                &tr,
+                &cfg.emitters,
+                cfg.seed,
+            );
+            ck.put(0, ROUND_EMITTERS, &e)?;
+            em = Some(e);
+            times.emitters_s = lap(&mut t);
+        }
+        if r < rounds_total {
+            let emission = emitters::radiance_per_triangle(
+                ds.mesh.num_triangles(),
+                em.as_deref().unwrap_or_default(),
+            );
+            let (m, parts) = score_model(&ds, &baked.hits, &tr.model, &emission, cfg);
+            let rr = RoundReport::new(
+                r,
+                &m,
+                parts,
+                &tr,
+                &p.log,
+                refine_s,
+                refine_stats.take(),
+                train_s,
+            );
+            ck.put(r, ROUND_REPORT, &rr)?;
+            rounds.push(rr);
+            lap(&mut t);
+        }
+        prev = Some((tr, p.log));
+    }
+    drop(store);
+    let (tr, log) = prev.context("no fit")?;
+    let em = em.context("no emitters")?;
     write_json(
         &out.join("emitters.json"),
         &serde_json::json!({ "emitters": em }),
     )?;
-    times.emitters_s = lap(&mut t);
     let emission = emitters::radiance_per_triangle(ds.mesh.num_triangles(), &em);
+    crate::interrupt::check(|| stopped(out, "after the fits"))?;
 
-    // (4) Refine the shadings by path tracing with the current estimate and fit again.
-    let mut rounds = Vec::new();
-    // What made the current round: its refinement (none for round 0) and its fit.
-    let (mut refine_s, mut refine_stats, mut train_s) = (0.0, None, times.train_s);
-    for r in 1..=rounds_total {
-        let (m, p) = score_model(&ds, &baked.hits, &tr.model, &emission, cfg);
-        rounds.push(RoundReport::new(
-            r - 1,
-            &m,
-            p,
-            &tr,
-            &log,
-            refine_s,
-            refine_stats,
-            train_s,
-        ));
-        lap(&mut t);
-        let mut rcfg = cfg.refine.paths.clone();
-        rcfg.seed = cfg.seed ^ ((r as u64) << 32);
-        let key = refine::refine_key(bake_key, &tr.model, &em, &rcfg);
-        let path = out.join("cache").join(format!("refine{r}.bin"));
-        let (w, h) = (ds.train.width, ds.train.height);
-        let shadings = match crate::cache::load(&path, key, ds.train.views.len(), w, h)? {
-            Some(s) => {
-                refine_stats = None;
-                s
-            }
-            None => {
-                let all: Vec<usize> = (0..ds.train.views.len()).collect();
-                let scope = refine::RefineScope {
-                    views: &all,
-                    material_cache: true,
-                };
-                let rf = refine::refine(
-                    &ds.mesh, &accel, &ds.train, &baked, &store, &tr.model, &em, &rcfg, &scope,
-                    !quiet,
-                );
-                crate::cache::save(&path, key, w, h, &rf.shadings)?;
-                refine_stats = Some(rf.stats);
-                rf.shadings
-            }
-        };
-        store.set_shadings(&shadings);
-        drop(shadings);
-        refine_s = lap(&mut t);
-        let schedule = cfg.train.schedule();
-        let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
-        (tr, log) = if cfg.refine.warm_start {
-            tr.cfg.lambda_d = lambda_d;
-            let seed = cfg.seed.wrapping_add(r as u64);
-            fit::fit_more(tr, &store, mode, &schedule, seed, !quiet)
-        } else {
-            // A fresh fit starts from the same initial model as round 0 (as the reference,
-            // whose seed is fixed), so a round differs from the last only by its shadings.
-            let plan = fit::FitPlan {
-                cfg: model_cfg.clone().with_lambda_d(lambda_d),
-                scene_box,
-                mode,
-                schedule,
-                seed: cfg.seed,
-            };
-            fit::fit(&store, plan, &device, !quiet)
-        };
-        train_s = lap(&mut t);
-        times.refine_s += refine_s;
-        times.train_s += train_s;
-    }
-    drop(store);
-
-    // (5) Predict the maps of every view and score them.
+    // (5) Predict the maps of every view and score them (into a staged folder that replaces
+    // `maps/` whole).
+    let maps_final = out.join("maps");
+    let maps_dir = crate::scene_model::sibling(&maps_final, "tmp");
+    let _ = std::fs::remove_dir_all(&maps_dir);
     let mut train_maps_final = Vec::new();
     for split in ds.splits() {
         let cast: Vec<ViewHits>;
@@ -350,12 +518,13 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
                 cfg.maps.albedo_samples,
                 cfg.seed ^ k as u64,
             );
-            m.write(&out.join("maps").join(&split.name), k)?;
+            m.write(&maps_dir.join(&split.name), k)?;
             if split.name == "train" {
                 train_maps_final.push(m);
             }
         }
     }
+    crate::scene_model::replace_dir(&maps_dir, &maps_final)?;
     times.maps_s = lap(&mut t);
 
     let (metrics, parts) = score(&ds, &baked.hits, &train_maps_final);
@@ -409,6 +578,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         renders,
         model_dir: None,
         zoo_entry: None,
+        resumed,
     };
 
     // The scene model: everything recovered, in one folder that renders without the photos.
@@ -502,7 +672,11 @@ fn render_val(
         material_cache: rc.material_cache,
         off_reflect: rc.off_reflect,
     };
-    let dir = out.join("render").join("val");
+    // Into a staged folder that replaces `render/` whole.
+    let fin = out.join("render");
+    let staged = crate::scene_model::sibling(&fin, "tmp");
+    let _ = std::fs::remove_dir_all(&staged);
+    let dir = staged.join("val");
     let cams: Vec<crate::render::CamRef> = val
         .views
         .iter()
@@ -576,6 +750,7 @@ fn render_val(
         })
         .collect();
     crate::output::write_sheet(&dir.join("sheet.png"), val.width, val.height, &rows)?;
+    crate::scene_model::replace_dir(&staged, &fin)?;
     Ok(Some(crate::report::ValRenders {
         spp: rc.spp,
         relight_spp: rc.relight_spp,
@@ -596,18 +771,15 @@ fn write_comparisons(ds: &Dataset, metrics: &Metrics, maps: &[ViewMaps], out: &P
         .collect();
     let worst = by_kd.iter().min_by(|a, b| a.1.total_cmp(&b.1));
     let best = by_kd.iter().max_by(|a, b| a.1.total_cmp(&b.1));
-    std::fs::create_dir_all(out.join("compare"))?;
+    let fin = out.join("compare");
+    let dir = crate::scene_model::sibling(&fin, "tmp");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
     for &(k, _) in worst.into_iter().chain(best) {
         let (w, h, rgb) = evaluate::comparison_figure(&ds.train.views[k], &maps[k]);
-        write_png(
-            &out.join("compare").join(format!("train_{k:03}.png")),
-            w,
-            h,
-            &rgb,
-            1.0,
-        )?;
+        write_png(&dir.join(format!("train_{k:03}.png")), w, h, &rgb, 1.0)?;
     }
-    Ok(())
+    crate::scene_model::replace_dir(&dir, &fin)
 }
 
 /// Scores a scene model (`scene_model`) against a scene's ground truth: its train maps

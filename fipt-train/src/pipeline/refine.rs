@@ -78,7 +78,7 @@ pub fn refine(
     cfg: &RefineConfig,
     scope: &RefineScope,
     show_progress: bool,
-) -> Refined {
+) -> anyhow::Result<Refined> {
     let emitter_tris: Vec<u32> = emitters.iter().map(|e| e.triangle).collect();
     let learned = LearnedMaterials::new(model.clone(), mesh.num_triangles(), &emitter_tris);
     // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
@@ -133,12 +133,12 @@ pub fn refine(
         cfg,
         scope.views,
         show_progress,
-    );
-    Refined {
+    )?;
+    Ok(Refined {
         shadings,
         stats,
         material_voxels: voxels.as_ref().map_or(0, VoxelMaterials::len),
-    }
+    })
 }
 
 /// Path-traces the shadings of the given training views with any material source and
@@ -153,7 +153,7 @@ pub fn refine_with(
     cfg: &RefineConfig,
     views: &[usize],
     show_progress: bool,
-) -> (Vec<Vec<f32>>, PathStats) {
+) -> anyhow::Result<(Vec<Vec<f32>>, PathStats)> {
     let scene = PathScene {
         secondary_materials: None,
         accel,
@@ -166,18 +166,24 @@ pub fn refine_with(
     };
     let pb = progress_bar(views.len() as u64, "refine", show_progress);
     let mut stats = PathStats::default();
-    let shadings = views
-        .iter()
-        .map(|&k| {
-            let (v, h) = (&train.views[k], &baked.hits[k]);
-            let (s, st) = refine_view(&scene, h, v.camera.fx as f32, cfg, k as u64);
-            stats.add(&st);
-            pb.inc(1);
-            s
-        })
-        .collect();
+    let mut shadings = Vec::with_capacity(views.len());
+    for &k in views {
+        // Ctrl-C stops between views (`interrupt`).
+        if crate::interrupt::requested() {
+            pb.finish_and_clear();
+            return Err(crate::interrupt::Interrupted(
+                "interrupted during a refinement (nothing of it saved)".into(),
+            )
+            .into());
+        }
+        let (v, h) = (&train.views[k], &baked.hits[k]);
+        let (s, st) = refine_view(&scene, h, v.camera.fx as f32, cfg, k as u64);
+        stats.add(&st);
+        pb.inc(1);
+        shadings.push(s);
+    }
     pb.finish_and_clear();
-    (shadings, stats)
+    Ok((shadings, stats))
 }
 
 /// Oracle shadings: path-traced with the scene's true materials and emitters (one-sided, as
@@ -219,6 +225,6 @@ pub fn oracle(
         cfg,
         &all,
         show_progress,
-    )
+    )?
     .0)
 }

@@ -1,0 +1,519 @@
+//! The resumable state of `run` in `OUT/checkpoint/`: what the stages after the bake computed,
+//! so that running the same command again continues where a killed or interrupted run
+//! stopped.
+//!
+//! - `key.json`: what every saved state depends on — the program (a hash of the executable),
+//!   the scene (mesh, cameras, photos and maps) and the config keys that change a fit. A
+//!   mismatch discards the whole folder, and the message says what changed.
+//! - `round{r}/step{s:07}/`: the fit of round `r` after `s` steps (`Trainer::save_state` plus
+//!   `FitProgress::save`), saved every `checkpoint.every_steps` steps, on Ctrl-C, and when the
+//!   fit ends; only the newest stays. Each folder is written under a `.tmp` name and renamed,
+//!   so it is complete or absent.
+//! - `round{r}/emitters.json` (round 0) and `round{r}/report.json` (every round but the last):
+//!   what follows a finished fit.
+//!
+//! The bake and each refinement round have their own keyed caches in `OUT/cache/`.
+//!
+//! Owns: this folder's layout, keys and validation. Must not touch: what the stages compute.
+
+use super::fit::{FitProgress, FitRun};
+use super::pixels::PixelStore;
+use anyhow::{Context, Result};
+use fipt_core::model::{TrainConfig, Trainer};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Bumped whenever this folder's layout or a saved file's format changes.
+const FORMAT: u32 = 1;
+const KEY_FILE: &str = "key.json";
+
+/// What every saved state depends on.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunKey {
+    pub format: u32,
+    /// FNV-64 of the running executable, hex.
+    pub program: String,
+    /// FNV-64 of the scene as loaded, hex.
+    pub scene: String,
+    /// The config keys that change any fit (everything but `refine.rounds`, `maps`, `render`
+    /// and `checkpoint`), plus whether the run fits the oracle shadings.
+    pub config: serde_json::Value,
+}
+
+impl RunKey {
+    pub fn new(program: u64, scene: u64, cfg: &crate::config::Config, oracle: bool) -> Self {
+        let mut c = serde_json::to_value(cfg).unwrap_or_default();
+        if let Some(m) = c.as_object_mut() {
+            for k in ["maps", "render", "checkpoint"] {
+                m.remove(k);
+            }
+            if let Some(r) = m.get_mut("refine").and_then(|r| r.as_object_mut()) {
+                r.remove("rounds");
+            }
+            m.insert("oracle".into(), oracle.into());
+        }
+        Self {
+            format: FORMAT,
+            program: format!("{program:016x}"),
+            scene: format!("{scene:016x}"),
+            config: c,
+        }
+    }
+
+    /// Why `self` (saved) does not hold for `now`, in words; None when it does.
+    fn mismatch(&self, now: &RunKey) -> Option<String> {
+        let mut why = Vec::new();
+        if self.format != now.format {
+            why.push("the checkpoint format changed".to_string());
+        }
+        if self.program != now.program {
+            why.push("the program changed (fipt-train was rebuilt)".to_string());
+        }
+        if self.scene != now.scene {
+            why.push("the scene changed (its mesh, cameras, photos or maps)".to_string());
+        }
+        let mut keys = Vec::new();
+        json_diff(&self.config, &now.config, "", &mut keys);
+        if !keys.is_empty() {
+            keys.truncate(6);
+            why.push(format!("the config changed at {}", keys.join(", ")));
+        }
+        (!why.is_empty()).then(|| why.join("; "))
+    }
+}
+
+/// The dotted paths where `a` and `b` differ.
+fn json_diff(a: &serde_json::Value, b: &serde_json::Value, at: &str, out: &mut Vec<String>) {
+    use serde_json::Value::Object;
+    match (a, b) {
+        (Object(x), Object(y)) => {
+            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+            for k in keys {
+                let path = if at.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{at}.{k}")
+                };
+                match (x.get(k), y.get(k)) {
+                    (Some(u), Some(v)) => json_diff(u, v, &path, out),
+                    _ => out.push(path),
+                }
+            }
+        }
+        _ if a != b => out.push(if at.is_empty() {
+            "(root)".into()
+        } else {
+            at.into()
+        }),
+        _ => {}
+    }
+}
+
+/// FNV-64 of the running executable: a different build is a different program.
+pub fn program_hash() -> u64 {
+    static HASH: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *HASH.get_or_init(|| {
+        let mut h = fipt_core::io::Fnv64::default();
+        h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
+        if let Some(bytes) = std::env::current_exe()
+            .ok()
+            .and_then(|p| std::fs::read(p).ok())
+        {
+            h.bytes(&bytes);
+        }
+        h.finish()
+    })
+}
+
+/// FNV-64 of a loaded scene: the bake's key (mesh, cameras, photos, bake config) and every
+/// map of every split.
+pub fn scene_hash(ds: &fipt_core::scene::Dataset, bake_key: u64) -> u64 {
+    let mut h = fipt_core::io::Fnv64::default();
+    h.bytes(&bake_key.to_le_bytes());
+    for split in ds.splits() {
+        h.bytes(split.name.as_bytes());
+        for v in &split.views {
+            for (kind, img) in &v.maps {
+                h.bytes(format!("{kind:?}").as_bytes());
+                h.f32s(&img.data);
+            }
+        }
+    }
+    h.finish()
+}
+
+/// The checkpoint folder of one run.
+pub struct Checkpoints {
+    pub dir: PathBuf,
+    /// Save every this many steps (0: only when a fit ends or is interrupted).
+    pub every: usize,
+}
+
+/// The fit a saved state must belong to: its base trainer config (before the schedule sets
+/// each step's rate and λ_d), device, trainer seed, pixels and run.
+pub struct FitOf<'a> {
+    pub cfg: &'a TrainConfig,
+    pub device: &'a burn::tensor::Device,
+    pub seed: u64,
+    pub store: &'a PixelStore,
+    pub run: &'a FitRun<'a>,
+}
+
+/// A fit restored from its newest checkpoint.
+pub struct Restored {
+    pub trainer: Trainer,
+    pub progress: FitProgress,
+}
+
+impl Checkpoints {
+    /// Opens `out/checkpoint` for `key`: a folder saved under another key is removed first,
+    /// and the returned message says what was thrown away and why. Stale temporary files
+    /// anywhere under `out` (left by a killed run) are removed.
+    pub fn open(out: &Path, key: &RunKey, every: usize) -> Result<(Self, Option<String>)> {
+        remove_stale_tmp(out);
+        let dir = out.join("checkpoint");
+        let key_path = dir.join(KEY_FILE);
+        let mut note = None;
+        if dir.exists() {
+            let saved = fipt_core::io::read_text(&key_path)
+                .ok()
+                .and_then(|t| serde_json::from_str::<RunKey>(&t).ok());
+            let why = match &saved {
+                None => Some(format!("{} is missing or unreadable", key_path.display())),
+                Some(s) => s.mismatch(key),
+            };
+            if let Some(why) = why {
+                let what = describe(&dir);
+                std::fs::remove_dir_all(&dir)
+                    .with_context(|| format!("{}: cannot remove", dir.display()))?;
+                if let Some(what) = what {
+                    note = Some(format!(
+                        "discarded the saved state in {} ({what}): {why}",
+                        dir.display()
+                    ));
+                }
+            }
+        }
+        if !key_path.exists() {
+            crate::output::write_json(&key_path, key)?;
+        }
+        Ok((Self { dir, every }, note))
+    }
+
+    fn round_dir(&self, round: usize) -> PathBuf {
+        self.dir.join(format!("round{round}"))
+    }
+
+    /// The newest step folder of `round`'s fit, with its step.
+    fn newest(&self, round: usize) -> Option<(usize, PathBuf)> {
+        step_dirs(&self.round_dir(round)).into_iter().last()
+    }
+
+    /// Whether `round`'s fit has a saved state that has run every step.
+    pub fn fit_done(&self, round: usize) -> bool {
+        self.newest(round).is_some_and(|(_, d)| {
+            fipt_core::io::read_text(&d.join("progress.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+                .is_some_and(|v| v["step"] == v["total"])
+        })
+    }
+
+    /// Removes the saved states of `round` and of every round after it.
+    pub fn discard_from(&self, round: usize) {
+        for r in round.. {
+            let rd = self.round_dir(r);
+            if !rd.exists() {
+                break;
+            }
+            let _ = std::fs::remove_dir_all(rd);
+        }
+    }
+
+    /// Like `restore`, but a damaged state is discarded (with the rounds after it) with a
+    /// message naming the file instead of failing the run: the fit then starts afresh.
+    pub fn restore_or_discard(&self, round: usize, fit: &FitOf) -> Option<Restored> {
+        match self.restore(round, fit) {
+            Ok(r) => r,
+            Err(e) => {
+                eprintln!("discarded round {round}'s saved fit, which is damaged: {e:#}");
+                self.discard_from(round);
+                None
+            }
+        }
+    }
+
+    /// The newest saved state of `round`'s fit; None when there is none. A damaged state is an
+    /// error naming its file.
+    pub fn restore(&self, round: usize, fit: &FitOf) -> Result<Option<Restored>> {
+        let Some((_, dir)) = self.newest(round) else {
+            return Ok(None);
+        };
+        let progress = FitProgress::load(&dir, fit.store, fit.run.mode, fit.run.schedule)?;
+        let trainer = Trainer::restore(fit.cfg.clone(), fit.device, fit.seed, &dir)
+            .map_err(anyhow::Error::msg)?;
+        Ok(Some(Restored { trainer, progress }))
+    }
+
+    /// The newest trainer of a finished `round` without its sampler (what the rounds after it
+    /// and the outputs need).
+    pub fn restore_trainer(
+        &self,
+        round: usize,
+        cfg: &TrainConfig,
+        device: &burn::tensor::Device,
+        seed: u64,
+    ) -> Result<(Trainer, super::fit::TrainLog)> {
+        let (_, dir) = self
+            .newest(round)
+            .with_context(|| format!("{}: no saved fit", self.round_dir(round).display()))?;
+        let trainer =
+            Trainer::restore(cfg.clone(), device, seed, &dir).map_err(anyhow::Error::msg)?;
+        let log = FitProgress::load_log(&dir)?;
+        Ok((trainer, log))
+    }
+
+    /// Saves the state of `round`'s fit after `p.step` steps as a new step folder (staged
+    /// under a `.tmp` name, then renamed), then removes the older ones.
+    pub fn save(&self, round: usize, tr: &Trainer, p: &FitProgress) -> Result<()> {
+        let rd = self.round_dir(round);
+        let name = format!("step{:07}", p.step);
+        let fin = rd.join(&name);
+        if fin.exists() {
+            return Ok(());
+        }
+        let tmp = rd.join(format!("{name}.tmp"));
+        let _ = std::fs::remove_dir_all(&tmp);
+        std::fs::create_dir_all(&tmp)
+            .with_context(|| format!("{}: cannot create", tmp.display()))?;
+        tr.save_state(&tmp).map_err(anyhow::Error::msg)?;
+        p.save(&tmp)?;
+        std::fs::rename(&tmp, &fin)
+            .with_context(|| format!("{}: cannot rename to {}", tmp.display(), fin.display()))?;
+        for (s, d) in step_dirs(&rd) {
+            if s < p.step {
+                let _ = std::fs::remove_dir_all(d);
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a fit that has just run `p.step` steps saves now (every `every` steps, and at
+    /// its end).
+    pub fn due(&self, p: &FitProgress) -> bool {
+        p.done() || (self.every > 0 && p.step.is_multiple_of(self.every))
+    }
+
+    /// Writes `round{round}/{name}` atomically.
+    pub fn put<T: Serialize>(&self, round: usize, name: &str, v: &T) -> Result<()> {
+        crate::output::write_json(&self.round_dir(round).join(name), v)
+    }
+
+    /// Whether `round{round}/{name}` exists.
+    pub fn has(&self, round: usize, name: &str) -> bool {
+        self.round_dir(round).join(name).is_file()
+    }
+
+    /// Reads `round{round}/{name}`; None when absent, an error naming the file when damaged.
+    pub fn get<T: for<'de> Deserialize<'de>>(&self, round: usize, name: &str) -> Result<Option<T>> {
+        let p = self.round_dir(round).join(name);
+        if !p.exists() {
+            return Ok(None);
+        }
+        let t = fipt_core::io::read_text(&p)?;
+        serde_json::from_str(&t)
+            .map(Some)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+    }
+}
+
+/// The step folders of a round, oldest first (temporary ones left out).
+fn step_dirs(round_dir: &Path) -> Vec<(usize, PathBuf)> {
+    let mut v: Vec<(usize, PathBuf)> = std::fs::read_dir(round_dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let s = name.strip_prefix("step")?.parse().ok()?;
+            Some((s, e.path()))
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// "round 1 at step 300; round 0 finished" for a checkpoint folder; None when it holds no fit.
+fn describe(dir: &Path) -> Option<String> {
+    let mut parts = Vec::new();
+    for r in 0.. {
+        let rd = dir.join(format!("round{r}"));
+        if !rd.exists() {
+            break;
+        }
+        if let Some((s, _)) = step_dirs(&rd).into_iter().last() {
+            parts.push(format!("round {r} at step {s}"));
+        }
+    }
+    (!parts.is_empty()).then(|| parts.join(", "))
+}
+
+/// Removes files and folders whose name ends in `.tmp` under `dir` (what a killed run leaves;
+/// `fipt_core::io::write_atomic` and staged folders use such names).
+pub fn remove_stale_tmp(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        let is_tmp = e.file_name().to_string_lossy().ends_with(".tmp");
+        match e.file_type() {
+            Ok(t) if t.is_dir() && is_tmp => {
+                let _ = std::fs::remove_dir_all(&p);
+            }
+            Ok(t) if t.is_dir() => remove_stale_tmp(&p),
+            Ok(_) if is_tmp => {
+                let _ = std::fs::remove_file(&p);
+            }
+            _ => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn key_mismatch_names_what_changed() {
+        let cfg = crate::config::Config::default();
+        let a = RunKey::new(1, 2, &cfg, false);
+        assert_eq!(a.mismatch(&a), None);
+        let mut c2 = cfg.clone();
+        c2.train.lr *= 2.0;
+        c2.refine.rounds += 1;
+        c2.render.spp += 1;
+        let b = RunKey::new(1, 2, &c2, false);
+        assert_eq!(
+            a.mismatch(&b).as_deref(),
+            Some("the config changed at train.lr")
+        );
+        let c = RunKey::new(3, 4, &cfg, true);
+        let why = a.mismatch(&c).unwrap();
+        assert!(
+            why.contains("program") && why.contains("scene") && why.contains("oracle"),
+            "{why}"
+        );
+    }
+
+    /// One kind of damage to a file: cut at a fraction of its length, flip a byte, or write a
+    /// huge little-endian u64 at an offset.
+    #[derive(Clone, Debug)]
+    enum Damage {
+        Truncate(f64),
+        Flip(f64, u8),
+        Huge(f64),
+    }
+
+    fn damage() -> impl proptest::strategy::Strategy<Value = Damage> {
+        use proptest::prelude::*;
+        prop_oneof![
+            (0.0..1.0f64).prop_map(Damage::Truncate),
+            (0.0..1.0f64, 1u8..=255).prop_map(|(at, x)| Damage::Flip(at, x)),
+            (0.0..1.0f64).prop_map(Damage::Huge),
+        ]
+    }
+
+    fn apply(b: &mut Vec<u8>, d: &Damage) {
+        let at = |f: f64, len: usize| ((f * len as f64) as usize).min(len.saturating_sub(1));
+        match *d {
+            Damage::Truncate(f) => b.truncate(at(f, b.len())),
+            Damage::Flip(f, x) => {
+                let i = at(f, b.len());
+                b[i] ^= x;
+            }
+            Damage::Huge(f) => {
+                let i = at(f, b.len().saturating_sub(8));
+                let n = 8.min(b.len() - i);
+                b[i..i + n].copy_from_slice(&(u64::MAX / 3).to_le_bytes()[..n]);
+            }
+        }
+    }
+
+    const STATE_FILES: [&str; 8] = [
+        "model.json",
+        "fields.bpk",
+        "hashgrid.bin",
+        "optim.bpk",
+        "table_adam.bin",
+        "trainer.json",
+        "progress.json",
+        "sampler.bin",
+    ];
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig {
+            cases: 240,
+            failure_persistence: None,
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed),
+            ..Default::default()
+        })]
+
+        /// A saved fit state with one file damaged (truncated, a byte flipped, a huge size
+        /// written): restoring it never panics nor allocates from a size field; a truncated
+        /// file is refused with its name in the message.
+        #[test]
+        fn damaged_state_is_refused_by_name(file in 0..STATE_FILES.len(), d in damage()) {
+            use crate::pipeline::fit::tests::{toy_fit, toy_store};
+            use crate::pipeline::fit::{FitRun, fit_resumable};
+            use fipt_core::model::step::SegMode;
+            static SAVED: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+            let st = toy_store(200);
+            let (cfg, schedule) = toy_fit();
+            let device = burn::tensor::Device::flex();
+            let run = FitRun { mode: SegMode::Part, schedule: &schedule, seed: 1, show_progress: false };
+            let good = SAVED.get_or_init(|| {
+                let dir = std::env::temp_dir().join(format!("fipt-ck-fuzz-{}", std::process::id()));
+                let _ = std::fs::remove_dir_all(&dir);
+                let ck = Checkpoints { dir: dir.clone(), every: 0 };
+                let tr = Trainer::new(cfg.clone(), fipt_core::scene::SceneBox { min: 0.0, max: 1.0 }, &device, 1);
+                let _ = fit_resumable(tr, &st, &run, None, &mut |tr, p| {
+                    if p.step == 3 {
+                        ck.save(0, tr, p)?;
+                        anyhow::bail!("stop");
+                    }
+                    Ok(())
+                });
+                dir
+            });
+            let case = good.with_file_name(format!(
+                "fipt-ck-fuzz-{}-{file}",
+                std::process::id()
+            ));
+            let _ = std::fs::remove_dir_all(&case);
+            let (src, dst) = (good.join("round0/step0000003"), case.join("round0/step0000003"));
+            std::fs::create_dir_all(&dst).unwrap();
+            for f in STATE_FILES {
+                let mut b = std::fs::read(src.join(f)).unwrap();
+                if f == STATE_FILES[file] {
+                    apply(&mut b, &d);
+                }
+                std::fs::write(dst.join(f), b).unwrap();
+            }
+            let ck = Checkpoints { dir: case.clone(), every: 0 };
+            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                let fit = FitOf { cfg: &cfg, device: &device, seed: 1, store: &st, run: &run };
+                ck.restore(0, &fit).map(|o| o.is_some())
+            }));
+            std::fs::remove_dir_all(&case).unwrap();
+            proptest::prop_assert!(r.is_ok(), "panicked on {} {:?}", STATE_FILES[file], d);
+            if let (Damage::Truncate(_), Ok(res)) = (&d, r) {
+                let e = res.err().map(|e| format!("{e:#}"));
+                proptest::prop_assert!(
+                    e.as_deref().is_some_and(|e| e.contains(STATE_FILES[file])),
+                    "{} truncated: {:?}", STATE_FILES[file], e
+                );
+            }
+        }
+    }
+}
