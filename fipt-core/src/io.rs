@@ -81,6 +81,45 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     })
 }
 
+/// Writes `v` as little-endian f32 values (one write, no copy, on a little-endian machine).
+pub fn write_f32s(w: &mut impl Write, v: &[f32]) -> std::io::Result<()> {
+    #[cfg(target_endian = "little")]
+    {
+        w.write_all(bytemuck::cast_slice(v))
+    }
+    #[cfg(not(target_endian = "little"))]
+    {
+        for x in v {
+            w.write_all(&x.to_le_bytes())?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes `path` atomically from `parts` (byte strings and f32 slices, in order), synced to
+/// disk before the rename: large tables go out without an intermediate byte copy.
+pub fn write_parts_atomic(path: &Path, parts: &[Part]) -> Result<()> {
+    write_atomic(path, |tmp| {
+        let f = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+        for p in parts {
+            match p {
+                Part::Bytes(b) => w.write_all(b),
+                Part::F32s(v) => write_f32s(&mut w, v),
+            }
+            .map_err(|e| e.to_string())?;
+        }
+        let f = w.into_inner().map_err(|e| e.to_string())?;
+        f.sync_all().map_err(|e| e.to_string())
+    })
+}
+
+/// A piece of a file written by `write_parts_atomic`.
+pub enum Part<'a> {
+    Bytes(&'a [u8]),
+    F32s(&'a [f32]),
+}
+
 fn tmp_path(path: &Path) -> PathBuf {
     let mut name = path
         .file_name()

@@ -301,28 +301,35 @@ fn time_steps(
 }
 
 /// `bench step`: median time of one stage-2 training step at the reference model size and at a
-/// CPU-sized configuration, per backend.
+/// CPU-sized configuration (with `peer_sizes`, also at the peer scripts' `--cpu-config`), per
+/// backend.
 pub fn step(
     backends: &[fipt_core::model::BackendKind],
     as_json: bool,
     batch: usize,
     steps: usize,
+    peer_sizes: bool,
 ) -> Result<()> {
     use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig, step::SegMode};
-    let configs = [
-        ("reference", TrainConfig::new()),
-        (
-            "cpu",
-            TrainConfig::new().with_material(
-                MaterialFieldConfig::new().with_grid(
-                    HashGridConfig::new()
-                        .with_levels(16)
-                        .with_log2_table(17)
-                        .with_per_level_scale(1.6),
-                ),
+    let grid = |levels, log2_table, scale| {
+        TrainConfig::new().with_material(
+            MaterialFieldConfig::new().with_grid(
+                HashGridConfig::new()
+                    .with_levels(levels)
+                    .with_log2_table(log2_table)
+                    .with_per_level_scale(scale),
             ),
-        ),
+        )
+    };
+    let mut configs = vec![
+        ("reference", TrainConfig::new()),
+        ("cpu", grid(16, 17, 1.6)),
     ];
+    if peer_sizes {
+        // The peers' `--cpu-config`: L = 16, T = 2^16, base 16 over [-1, 1] (32 over fipt's
+        // [0, 1]), scale 1.3; the MLPs are the reference's in both.
+        configs.push(("peer-cpu", grid(16, 16, 1.3)));
+    }
     let store = pixel_store(48);
     let mut rows = Vec::new();
     for (name, cfg) in configs {

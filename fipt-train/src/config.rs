@@ -289,13 +289,15 @@ impl Default for RenderSection {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CheckpointSection {
-    /// Save the running fit every this many steps (0: only when it ends and on Ctrl-C).
+    /// Save the running fit every this many steps (0: only when it ends and on Ctrl-C). At the
+    /// default 200, saving costs 1.5 % of a default fipt-room run (~1.1 s per save of the
+    /// 370 MB state, 15 saves); `configs/fast.json`'s small model saves every 100.
     pub every_steps: usize,
 }
 
 impl Default for CheckpointSection {
     fn default() -> Self {
-        Self { every_steps: 100 }
+        Self { every_steps: 200 }
     }
 }
 

@@ -324,6 +324,9 @@ enum BenchCmd {
         /// Timed steps (after 2 warm-up steps).
         #[arg(long, default_value_t = 10)]
         steps: usize,
+        /// Also time the peers' `--cpu-config` sizes (16 levels, 2^16 entries, scale 1.3).
+        #[arg(long)]
+        peer_sizes: bool,
     },
 }
 
@@ -567,13 +570,14 @@ fn main() {
                 json,
                 batch,
                 steps,
+                peer_sizes,
             } => {
                 let b = if backend.is_empty() {
                     vec![BackendKind::Flex, BackendKind::Ndarray]
                 } else {
                     backend
                 };
-                bench::step(&b, json, batch, steps)
+                bench::step(&b, json, batch, steps, peer_sizes)
             }
         },
     };

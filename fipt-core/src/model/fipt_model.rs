@@ -190,32 +190,28 @@ impl FiptModel {
             .save_file(&tmp)
             .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
         std::fs::rename(&tmp, dir.join(NETS_FILE)).map_err(|e| e.to_string())?;
-        let (name, bytes): (&str, Vec<u8>) = match format {
-            TableFormat::F32 => (
-                GRID_FILE,
-                self.grid
-                    .table
-                    .iter()
-                    .flat_map(|x| x.to_le_bytes())
-                    .collect(),
-            ),
-            TableFormat::F16 => (
-                GRID_FILE_F16,
-                self.grid
+        // Only one table file: a stale one of the other format would be ambiguous.
+        let (name, other) = match format {
+            TableFormat::F32 => (GRID_FILE, GRID_FILE_F16),
+            TableFormat::F16 => (GRID_FILE_F16, GRID_FILE),
+        };
+        let _ = std::fs::remove_file(dir.join(other));
+        let path = dir.join(name);
+        match format {
+            TableFormat::F32 => {
+                crate::io::write_parts_atomic(&path, &[crate::io::Part::F32s(&self.grid.table)])
+            }
+            TableFormat::F16 => {
+                let bytes: Vec<u8> = self
+                    .grid
                     .table
                     .iter()
                     .flat_map(|&x| half::f16::from_f32(x).to_le_bytes())
-                    .collect(),
-            ),
-        };
-        // Only one table file: a stale one of the other format would be ambiguous.
-        let other = if format == TableFormat::F32 {
-            GRID_FILE_F16
-        } else {
-            GRID_FILE
-        };
-        let _ = std::fs::remove_file(dir.join(other));
-        crate::io::write_bytes_atomic(&dir.join(name), &bytes).map_err(|e| e.to_string())
+                    .collect();
+                crate::io::write_bytes_atomic(&path, &bytes)
+            }
+        }
+        .map_err(|e| e.to_string())
     }
 
     /// Loads a model saved by `save` onto `device`. Errors name the file and the problem

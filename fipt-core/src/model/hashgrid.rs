@@ -567,14 +567,31 @@ impl TableAdam {
     /// The state as bytes (a checkpoint): magic, step count, entry count, then m and v as
     /// little-endian f32.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(24 + 8 * self.m.len());
-        out.extend_from_slice(ADAM_MAGIC);
-        out.extend_from_slice(&self.t.to_le_bytes());
-        out.extend_from_slice(&(self.m.len() as u64).to_le_bytes());
+        let mut out = Vec::with_capacity(20 + 8 * self.m.len());
+        out.extend_from_slice(&self.header());
         for x in self.m.iter().chain(&self.v) {
             out.extend_from_slice(&x.to_le_bytes());
         }
         out
+    }
+
+    /// The bytes `to_bytes` writes before the moments.
+    fn header(&self) -> [u8; 20] {
+        let mut h = [0u8; 20];
+        h[..8].copy_from_slice(ADAM_MAGIC);
+        h[8..12].copy_from_slice(&self.t.to_le_bytes());
+        h[12..].copy_from_slice(&(self.m.len() as u64).to_le_bytes());
+        h
+    }
+
+    /// Writes what `to_bytes` returns to `path` atomically, without building it in memory.
+    pub fn save(&self, path: &std::path::Path) -> crate::io::Result<()> {
+        use crate::io::Part;
+        let h = self.header();
+        crate::io::write_parts_atomic(
+            path,
+            &[Part::Bytes(&h), Part::F32s(&self.m), Part::F32s(&self.v)],
+        )
     }
 
     /// Restores a state written by `to_bytes` for a table of this optimiser's size; the error

@@ -222,7 +222,8 @@ impl Trainer {
             .into_bytes()
             .map_err(|e| format!("{}: {e:?}", dir.join(OPTIM_FILE).display()))?;
         crate::io::write_bytes_atomic(&dir.join(OPTIM_FILE), &optim).map_err(|e| e.to_string())?;
-        crate::io::write_bytes_atomic(&dir.join(TABLE_ADAM_FILE), &self.grid_adam.to_bytes())
+        self.grid_adam
+            .save(&dir.join(TABLE_ADAM_FILE))
             .map_err(|e| e.to_string())?;
         let state = serde_json::json!({ "steps": self.steps });
         crate::io::write_bytes_atomic(&dir.join(TRAINER_FILE), state.to_string().as_bytes())
