@@ -507,30 +507,22 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     // to 1e-4 (the whole metrics.json but times, paths and the resume note).
     let b = base.join("b");
     let stops = [
-        Stop::kill("the bake", |o| o.join("config.json").exists(), 3000),
+        Stop::kill("the bake", |o, _| o.join("config.json").exists(), 3000),
         Stop {
             name: "round 0's fit (Ctrl-C)",
-            when: |o| o.join("checkpoint/round0/step0000100").exists(),
+            when: |o, _| newest_step(o, 0) >= Some(100),
             delay_ms: 0,
             sigint: true,
         },
-        Stop::kill(
-            "round 0's fit",
-            |o| o.join("checkpoint/round0/step0000300").exists(),
-            100,
-        ),
+        Stop::kill("round 0's fit", |o, _| newest_step(o, 0) >= Some(300), 100),
         Stop::kill(
             "refinement 1",
-            |o| o.join("checkpoint/round0/report.json").exists(),
+            |o, _| o.join("checkpoint/round0/report.json").exists(),
             1500,
         ),
-        Stop::kill(
-            "round 1's fit",
-            |o| o.join("checkpoint/round1/step0000200").exists(),
-            100,
-        ),
-        Stop::kill("the maps", |o| staged(o, "maps"), 300),
-        Stop::kill("the re-renders", |o| staged(o, "render"), 1000),
+        Stop::kill("round 1's fit", |o, _| newest_step(o, 1) >= Some(200), 100),
+        Stop::kill("the maps", |o, pid| staged(o, "maps", pid), 300),
+        Stop::kill("the re-renders", |o, pid| staged(o, "render", pid), 1000),
     ];
     for stop in &stops {
         interrupt(&b, &fast, stop);
@@ -545,6 +537,21 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     let mut diffs = Vec::new();
     same_json(&m, &m2, "", &mut diffs);
     assert!(diffs.is_empty(), "resumed vs uninterrupted: {diffs:?}");
+    // The scene models agree exactly: the f16 table byte for byte, the network weights value
+    // for value (burn's record files also hold per-process parameter ids).
+    let read = |d: &str| std::fs::read(base.join(d).join("model/hashgrid.f16")).unwrap();
+    assert!(
+        read("a") == read("b"),
+        "model/hashgrid.f16 differs after resuming"
+    );
+    let device = burn::tensor::Device::flex();
+    let nets = |d: &str| {
+        fipt_train::scene_model::SceneModel::load(&base.join(d).join("model"), &device)
+            .unwrap()
+            .model
+            .net_params()
+    };
+    assert!(nets("a") == nets("b"), "the networks differ after resuming");
     let leftovers: Vec<_> = walk(&b)
         .into_iter()
         .filter(|p| p.to_string_lossy().contains(".tmp"))
@@ -579,17 +586,26 @@ fn constant_predictor_scores() -> ([f64; 3], f32) {
     )
 }
 
-/// One interruption of a run: once `when` holds in its output folder, wait `delay_ms`, then
-/// send SIGKILL (or SIGINT).
+/// One interruption of a run: once `when` holds for its output folder and process id, wait
+/// `delay_ms`, then send SIGKILL (or SIGINT).
 struct Stop {
     name: &'static str,
-    when: fn(&Path) -> bool,
+    when: fn(&Path, u32) -> bool,
     delay_ms: u64,
     sigint: bool,
 }
 
+/// The newest saved step of `round`'s fit in a run's checkpoint folder.
+fn newest_step(out: &Path, round: usize) -> Option<usize> {
+    std::fs::read_dir(out.join(format!("checkpoint/round{round}")))
+        .ok()?
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.strip_prefix("step")?.parse().ok())
+        .max()
+}
+
 impl Stop {
-    fn kill(name: &'static str, when: fn(&Path) -> bool, delay_ms: u64) -> Self {
+    fn kill(name: &'static str, when: fn(&Path, u32) -> bool, delay_ms: u64) -> Self {
         Self {
             name,
             when,
@@ -599,14 +615,9 @@ impl Stop {
     }
 }
 
-/// Whether a staged folder of `name` (written before it replaces `OUT/name`) exists.
-fn staged(out: &Path, name: &str) -> bool {
-    let prefix = format!(".{name}.tmp-");
-    std::fs::read_dir(out)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .any(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+/// Whether process `pid` is staging a folder `name` (written before it replaces `OUT/name`).
+fn staged(out: &Path, name: &str, pid: u32) -> bool {
+    out.join(format!(".{name}.tmp-{pid}.tmp")).exists()
 }
 
 /// Starts `fipt-train run` on the fast config into `out` and stops it as `stop` says. A
@@ -634,15 +645,32 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
                 std::fs::read_to_string(&err_path).unwrap_or_default()
             );
         }
-        if (stop.when)(out) {
+        if (stop.when)(out, child.id()) {
             break;
         }
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     std::thread::sleep(std::time::Duration::from_millis(stop.delay_ms));
+    // A resumed run neither discarded its saved state nor failed.
+    let no_discard = |err: &str| {
+        assert!(
+            !err.contains("discarded") && !err.contains("error"),
+            "{}: {err}",
+            stop.name
+        )
+    };
     if !stop.sigint {
         child.kill().unwrap();
         let st = child.wait().unwrap();
+        use std::os::unix::process::ExitStatusExt;
+        let err = std::fs::read_to_string(&err_path).unwrap();
+        assert_eq!(
+            st.signal(),
+            Some(9),
+            "{}: not killed: {st} {err}",
+            stop.name
+        );
+        no_discard(&err);
         eprintln!("killed during {}: {st}", stop.name);
         return;
     }
@@ -654,6 +682,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
     let st = child.wait().unwrap();
     let err = std::fs::read_to_string(&err_path).unwrap();
     assert_eq!(st.code(), Some(130), "Ctrl-C in {}: {st}, {err}", stop.name);
+    no_discard(&err);
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "Ctrl-C: not one line: {err}");
     eprintln!("Ctrl-C during {}: {}", stop.name, lines[0]);
@@ -716,6 +745,8 @@ fn assert_complete(out: &Path) {
                     "optim.bpk",
                     "table_adam.bin",
                     "model.json",
+                    "fields.bpk",
+                    "hashgrid.bin",
                 ] {
                     assert!(p.join(f).is_file(), "{s}: {f} missing");
                 }

@@ -404,16 +404,8 @@ impl Config {
         }
         check(t.sem_partners >= 1, "train.sem_partners", "must be >= 1")?;
         let g = &t.grid;
-        check(
-            (1..=64).contains(&g.levels),
-            "train.grid.levels",
-            "must be in [1, 64]",
-        )?;
-        check(
-            (1..=8).contains(&g.features),
-            "train.grid.features",
-            "must be in [1, 8]",
-        )?;
+        // A training table of at least 2^8 entries and a base of at least 2 cells; the rest
+        // of the grid's ranges are `HashGridConfig::check`'s (also applied to saved models).
         check(
             (8..=24).contains(&g.log2_table),
             "train.grid.log2_table",
@@ -424,12 +416,6 @@ impl Config {
             "train.grid.base_resolution",
             "must be >= 2",
         )?;
-        check(
-            g.per_level_scale >= 1.0,
-            "train.grid.per_level_scale",
-            "must be >= 1",
-        )?;
-        g.check().map_err(|e| anyhow::anyhow!("train.{e}"))?;
         if let MaxResolution::Fixed(r) = g.max_resolution {
             check(
                 r.is_finite() && r >= 1.0,
@@ -437,6 +423,7 @@ impl Config {
                 "must be \"auto\", \"none\" or a number >= 1",
             )?;
         }
+        g.check().map_err(|e| anyhow::anyhow!("train.{e}"))?;
         check(
             t.mlp_hidden >= 1 && t.mlp_layers >= 1,
             "train.mlp_hidden",

@@ -1,4 +1,4 @@
-//! Ctrl-C (SIGINT, and SIGTERM) as a request to stop at the next safe point: the running fit
+//! Ctrl-C (SIGINT, and SIGTERM and SIGHUP) as a request to stop at the next safe point: the running fit
 //! saves its state and `run` returns `Interrupted`, which the CLI prints as one line and exits
 //! with 130. A second Ctrl-C quits at once (what was saved stays valid: every file and
 //! checkpoint folder appears atomically).
@@ -41,11 +41,6 @@ pub fn install() {
 /// Whether a stop was requested.
 pub fn requested() -> bool {
     STOP.load(Ordering::SeqCst)
-}
-
-/// Requests a stop, as Ctrl-C does.
-pub fn request() {
-    STOP.store(true, Ordering::SeqCst);
 }
 
 /// `Err(Interrupted(msg()))` when a stop was requested.

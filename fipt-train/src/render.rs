@@ -222,6 +222,8 @@ fn render_cams(
     let mut rows = Vec::new();
     let mut stats = PathStats::default();
     for &&(k, ref camera, refimg) in cams {
+        // Ctrl-C stops between views (`interrupt`); `run` rewords where it was.
+        crate::interrupt::check(|| "interrupted during the re-renders".into())?;
         let t = Instant::now();
         let base = pb.position();
         let (rgb, st) =

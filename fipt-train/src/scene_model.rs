@@ -251,7 +251,9 @@ pub(crate) fn sibling(dir: &Path, tag: &str) -> PathBuf {
 }
 
 /// Moves the complete folder `from` to `to`, replacing `to`: the old folder is first renamed
-/// aside, so at every instant `to` is either the old or the new complete folder.
+/// aside, so `to` is the old complete folder, then absent for an instant, then the new one; a
+/// run killed in that instant leaves the old copy aside, which the next `run` puts back
+/// (`pipeline::checkpoint::remove_stale_tmp`).
 pub fn replace_dir(from: &Path, to: &Path) -> Result<()> {
     if let Some(p) = to.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(p).with_context(|| format!("{}: cannot create", p.display()))?;

@@ -206,7 +206,8 @@ pub struct BakeOutput {
 }
 
 /// Bakes (and filters) every view; `progress(k)` is called after view k and returns whether
-/// to go on: `false` stops the bake, which then returns None (nothing partial).
+/// to go on: `false` before the last view stops the bake, which then returns None (nothing
+/// partial).
 pub fn bake_views(
     accel: &Accel,
     lf: &LightField,
@@ -234,7 +235,7 @@ pub fn bake_views(
             &groups,
         );
         shadings.push(s);
-        if !progress(k) {
+        if !progress(k) && k + 1 < views.len() {
             return None;
         }
     }

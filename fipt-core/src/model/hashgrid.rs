@@ -163,8 +163,8 @@ impl HashGridConfig {
 
     /// Range checks that keep `init` finite and bounded (a saved model's sizes may be
     /// damaged): levels in [1, 64], features in [1, 8], log2_table in [1, 24], base resolution
-    /// and per-level scale finite and >= 1, the finest level at most `MAX_RESOLUTION`; the
-    /// reason names the key (`grid.levels: ...`).
+    /// and per-level scale finite and >= 1, the finest level at most `MAX_RESOLUTION`, at most
+    /// 2^30 table values; the reason names the key (`grid.levels: ...`).
     pub fn check(&self) -> Result<(), String> {
         let fail = |k: &str, what: &str| Err(format!("grid.{k}: {what}"));
         if !(1..=64).contains(&self.levels) {
@@ -193,6 +193,13 @@ impl HashGridConfig {
             && !(r.is_finite() && r >= 1.0)
         {
             return fail("max_resolution", "must be finite and >= 1");
+        }
+        let values = ((self.levels * self.features) as u64) << self.log2_table;
+        if values > 1 << 30 {
+            return fail(
+                "log2_table",
+                "levels × features × 2^log2_table must be at most 2^30 values (4 GB)",
+            );
         }
         Ok(())
     }

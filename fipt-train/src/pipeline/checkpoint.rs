@@ -14,7 +14,8 @@
 //!
 //! The bake and each refinement round have their own keyed caches in `OUT/cache/`.
 //!
-//! Owns: this folder's layout, keys and validation. Must not touch: what the stages compute.
+//! Owns: this folder's layout, keys and validation, and the removal of what a killed run left
+//! in `OUT` (`remove_stale_tmp`). Must not touch: what the stages compute.
 
 use super::fit::{FitProgress, FitRun};
 use super::pixels::PixelStore;
@@ -35,8 +36,9 @@ pub struct RunKey {
     pub program: String,
     /// FNV-64 of the scene as loaded, hex.
     pub scene: String,
-    /// The config keys that change any fit (everything but `refine.rounds`, `maps`, `render`
-    /// and `checkpoint`), plus whether the run fits the oracle shadings.
+    /// The config keys that change any fit or the saved scores (everything but
+    /// `refine.rounds`, `render` and `checkpoint`), plus whether the run fits the oracle
+    /// shadings.
     pub config: serde_json::Value,
 }
 
@@ -44,7 +46,7 @@ impl RunKey {
     pub fn new(program: u64, scene: u64, cfg: &crate::config::Config, oracle: bool) -> Self {
         let mut c = serde_json::to_value(cfg).unwrap_or_default();
         if let Some(m) = c.as_object_mut() {
-            for k in ["maps", "render", "checkpoint"] {
+            for k in ["render", "checkpoint"] {
                 m.remove(k);
             }
             if let Some(r) = m.get_mut("refine").and_then(|r| r.as_object_mut()) {
@@ -125,11 +127,16 @@ pub fn program_hash() -> u64 {
     })
 }
 
-/// FNV-64 of a loaded scene: the bake's key (mesh, cameras, photos, bake config) and every
-/// map of every split.
+/// FNV-64 of a loaded scene: the bake's key (mesh, cameras, photos, bake config), its
+/// `scene_meta.json` (the parts of the scores) and every map of every split.
 pub fn scene_hash(ds: &fipt_core::scene::Dataset, bake_key: u64) -> u64 {
     let mut h = fipt_core::io::Fnv64::default();
     h.bytes(&bake_key.to_le_bytes());
+    h.bytes(
+        serde_json::to_string(&ds.meta)
+            .unwrap_or_default()
+            .as_bytes(),
+    );
     for split in ds.splits() {
         h.bytes(split.name.as_bytes());
         for v in &split.views {
@@ -184,8 +191,10 @@ impl Checkpoints {
             };
             if let Some(why) = why {
                 let what = describe(&dir);
-                std::fs::remove_dir_all(&dir)
-                    .with_context(|| format!("{}: cannot remove", dir.display()))?;
+                remove_dir_aside(&dir);
+                if dir.exists() {
+                    anyhow::bail!("{}: cannot remove", dir.display());
+                }
                 if let Some(what) = what {
                     note = Some(format!(
                         "discarded the saved state in {} ({what}): {why}",
@@ -215,7 +224,7 @@ impl Checkpoints {
             fipt_core::io::read_text(&d.join("progress.json"))
                 .ok()
                 .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                .is_some_and(|v| v["step"] == v["total"])
+                .is_some_and(|v| v["step"].is_u64() && v["step"] == v["total"])
         })
     }
 
@@ -226,7 +235,7 @@ impl Checkpoints {
             if !rd.exists() {
                 break;
             }
-            let _ = std::fs::remove_dir_all(rd);
+            remove_dir_aside(&rd);
         }
     }
 
@@ -292,7 +301,7 @@ impl Checkpoints {
             .with_context(|| format!("{}: cannot rename to {}", tmp.display(), fin.display()))?;
         for (s, d) in step_dirs(&rd) {
             if s < p.step {
-                let _ = std::fs::remove_dir_all(d);
+                remove_dir_aside(&d);
             }
         }
         Ok(())
@@ -358,24 +367,70 @@ fn describe(dir: &Path) -> Option<String> {
     (!parts.is_empty()).then(|| parts.join(", "))
 }
 
-/// Removes files and folders whose name ends in `.tmp` under `dir` (what a killed run leaves;
-/// `fipt_core::io::write_atomic` and staged folders use such names).
-pub fn remove_stale_tmp(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
+/// Renames `dir` to a temporary name, then removes it: a kill in between never leaves a
+/// half-deleted folder under its own name.
+fn remove_dir_aside(dir: &Path) {
+    let aside = crate::scene_model::sibling(dir, "gone");
+    if std::fs::rename(dir, &aside).is_ok() {
+        let _ = std::fs::remove_dir_all(aside);
+    }
+}
+
+/// Whether `name` is a temporary of a fipt process that is no longer running: a file
+/// `NAME.PID.tmp` (`fipt_core::io::write_atomic`), a folder `.NAME.TAG-PID.tmp`
+/// (`scene_model::sibling`), or a checkpoint step folder `stepN.tmp`.
+fn stale_tmp(name: &str) -> bool {
+    let Some(stem) = name.strip_suffix(".tmp") else {
+        return false;
     };
-    for e in entries.flatten() {
+    if stem.starts_with("step") && stem[4..].bytes().all(|b| b.is_ascii_digit()) {
+        return true;
+    }
+    let pid = stem
+        .rsplit(['.', '-'])
+        .next()
+        .filter(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
+    pid.is_some_and(|p| !Path::new("/proc").join(p).exists() || p == std::process::id().to_string())
+}
+
+/// Removes the temporaries a killed run left (`stale_tmp`) in `out`, `out/cache` and,
+/// recursively, `out/checkpoint`. A folder staged to replace `out/NAME` whose old copy was set
+/// aside (`.NAME.old-PID.tmp`) while `NAME` is missing is put back first.
+pub fn remove_stale_tmp(out: &Path) {
+    restore_set_aside(out);
+    clean(out, false);
+    clean(&out.join("cache"), false);
+    clean(&out.join("checkpoint"), true);
+}
+
+fn restore_set_aside(out: &Path) {
+    for e in std::fs::read_dir(out).into_iter().flatten().flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let Some(name) = n
+            .strip_prefix('.')
+            .and_then(|r| r.split_once(".old-"))
+            .map(|(name, _)| name.to_string())
+        else {
+            continue;
+        };
+        if stale_tmp(&n) && !out.join(&name).exists() {
+            let _ = std::fs::rename(e.path(), out.join(&name));
+        }
+    }
+}
+
+fn clean(dir: &Path, recurse: bool) {
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
         let p = e.path();
-        let is_tmp = e.file_name().to_string_lossy().ends_with(".tmp");
-        match e.file_type() {
-            Ok(t) if t.is_dir() && is_tmp => {
+        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+        if stale_tmp(&e.file_name().to_string_lossy()) {
+            if is_dir {
                 let _ = std::fs::remove_dir_all(&p);
-            }
-            Ok(t) if t.is_dir() => remove_stale_tmp(&p),
-            Ok(_) if is_tmp => {
+            } else {
                 let _ = std::fs::remove_file(&p);
             }
-            _ => {}
+        } else if is_dir && recurse {
+            clean(&p, true);
         }
     }
 }

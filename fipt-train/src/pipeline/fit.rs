@@ -180,8 +180,8 @@ impl Sampler {
         b
     }
 
-    /// The sampler `to_bytes` saved, for a store of `pixels` pixels; the reason when the bytes
-    /// are not one (wrong magic, size, length, or an order that is not a permutation).
+    /// The sampler `to_bytes` saved, for `store`; the reason when the bytes are not one (wrong
+    /// magic, size, length, or an order that is not a permutation).
     fn from_bytes(b: &[u8], store: &PixelStore, balanced: bool) -> Result<Self, String> {
         if b.len() < 32 || &b[..8] != SAMPLER_MAGIC {
             return Err("not a fipt sampler state".into());
@@ -371,7 +371,7 @@ pub fn fit(
     fit_more(tr, store, mode, &schedule, seed, show_progress)
 }
 
-/// Runs the schedule on an existing trainer (a warm start).
+/// Runs the schedule on a trainer, from its first step, without checkpoints.
 pub fn fit_more(
     tr: Trainer,
     store: &PixelStore,
@@ -509,6 +509,8 @@ pub(crate) mod tests {
         let schedule = Schedule {
             min_steps: 25,
             balance: 0.25,
+            lr_end: 0.1,
+            lambda_d_end: 0.5,
             ..Schedule::reference(1, 64, 1e-2)
         };
         (train.model_config(3), schedule)
@@ -560,6 +562,15 @@ pub(crate) mod tests {
         let (resumed, pr) =
             fit_resumable(c.trainer, &st, &run, Some(c.progress), &mut |_, _| Ok(())).unwrap();
         assert_eq!(pw.log.step_total, pr.log.step_total);
+        let epochs = |p: &FitProgress| {
+            p.log
+                .epochs
+                .iter()
+                .map(|e| [e.total, e.color, e.emission, e.diffuse, e.seg])
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(epochs(&pw), epochs(&pr));
+        assert_eq!(whole.steps, resumed.steps);
         assert_eq!(whole.model.grid.table, resumed.model.grid.table);
         assert_eq!(whole.model.net_params(), resumed.model.net_params());
 

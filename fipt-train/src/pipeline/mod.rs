@@ -7,6 +7,7 @@
 //! - `predict`: per-view maps of the fitted model; `evaluate`: scores against ground truth.
 //!
 //! - `refine`: the shadings path-traced with the current estimate (§4.3, Eq. 10–11);
+//! - `checkpoint`: the fits' saved state, so that a killed run resumes.
 //!
 //! `run` reads as the figure: bake → fit → extract → (refine → fit) × rounds → predict →
 //! evaluate.
@@ -250,7 +251,10 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             crate::interrupt::reword(e, || stopped(out, "during the bake (it restarts)"))
         })?;
     let rounds_total = if oracle {
-        baked.shadings = oracle_cached(scene, out, &ds, &accel, &baked, bake_key, cfg, quiet)?;
+        baked.shadings = oracle_cached(scene, out, &ds, &accel, &baked, bake_key, cfg, quiet)
+            .map_err(|e| {
+                crate::interrupt::reword(e, || stopped(out, "during the oracle shadings"))
+            })?;
         0
     } else {
         cfg.refine.rounds
@@ -429,20 +433,23 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         };
         let mut ck_s = 0.0;
         let (tr, p) = fit::fit_resumable(tr0, st, &run, progress, &mut |tr, p| {
+            // The flag is read once: a stop always follows a save of this very step.
             let stop = crate::interrupt::requested();
             if stop || ck.due(p) {
                 let t0 = Instant::now();
                 ck.save(r, tr, p)?;
                 ck_s += t0.elapsed().as_secs_f64();
             }
-            crate::interrupt::check(|| {
-                format!(
+            if stop {
+                return Err(crate::interrupt::Interrupted(format!(
                     "interrupted: round {r}'s fit saved at step {} of {} in {}; run the same command again to continue",
                     p.step,
                     p.total,
                     ck.dir.display()
-                )
-            })
+                ))
+                .into());
+            }
+            Ok(())
         })?;
         ck.save(r, &tr, &p)?;
         times.checkpoint_s += ck_s;
@@ -511,6 +518,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             &cast
         };
         for (k, h) in hits.iter().enumerate() {
+            crate::interrupt::check(|| stopped(out, "during the maps (they restart)"))?;
             let m = predict_view(
                 &tr.model,
                 h,
@@ -548,7 +556,9 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         light_field: &baked.light_field,
     };
     let renders = if cfg.render.val {
-        render_val(scene, out, &ds, &recovered, cfg, quiet)?
+        render_val(scene, out, &ds, &recovered, cfg, quiet).map_err(|e| {
+            crate::interrupt::reword(e, || stopped(out, "during the re-renders (they restart)"))
+        })?
     } else {
         None
     };
@@ -581,6 +591,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         resumed,
     };
 
+    crate::interrupt::check(|| stopped(out, "before the scene model was saved"))?;
     // The scene model: everything recovered, in one folder that renders without the photos.
     let model_dir = out.join("model");
     let m = &report.metrics;
