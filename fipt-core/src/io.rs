@@ -74,11 +74,7 @@ pub fn write_atomic(
 
 /// Writes bytes atomically.
 pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    write_atomic(path, |tmp| {
-        let mut f = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
-        f.write_all(bytes).map_err(|e| e.to_string())?;
-        f.sync_all().map_err(|e| e.to_string())
-    })
+    write_parts_atomic(path, &[Part::Bytes(bytes)])
 }
 
 /// Writes `v` as little-endian f32 values (one write, no copy, on a little-endian machine).

@@ -6,10 +6,10 @@
 
 use anyhow::{Context, Result, bail};
 use fipt_bake::integrators::bake::BakeConfig;
-use fipt_core::io::{Fnv64, write_atomic};
+use fipt_core::io::{Fnv64, Part, write_parts_atomic};
 use fipt_core::scene::{Dataset, Image};
 use fipt_core::shading::ShadingLayout;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"FIPTSHD1";
@@ -48,22 +48,16 @@ pub fn save(
     height: usize,
     shadings: &[Vec<f32>],
 ) -> Result<()> {
-    write_atomic(path, |tmp| {
-        let f = std::fs::File::create(tmp).map_err(|e| e.to_string())?;
-        let mut w = std::io::BufWriter::new(f);
-        let mut head = Vec::new();
-        head.extend_from_slice(MAGIC);
-        head.extend_from_slice(&key.to_le_bytes());
-        for v in [shadings.len(), width, height, ShadingLayout::DIM] {
-            head.extend_from_slice(&(v as u64).to_le_bytes());
-        }
-        w.write_all(&head).map_err(|e| e.to_string())?;
-        for s in shadings {
-            let bytes: Vec<u8> = s.iter().flat_map(|x| x.to_le_bytes()).collect();
-            w.write_all(&bytes).map_err(|e| e.to_string())?;
-        }
-        w.flush().map_err(|e| e.to_string())
-    })?;
+    let mut head = Vec::new();
+    head.extend_from_slice(MAGIC);
+    head.extend_from_slice(&key.to_le_bytes());
+    for v in [shadings.len(), width, height, ShadingLayout::DIM] {
+        head.extend_from_slice(&(v as u64).to_le_bytes());
+    }
+    let parts: Vec<Part> = std::iter::once(Part::Bytes(&head))
+        .chain(shadings.iter().map(|s| Part::F32s(s)))
+        .collect();
+    write_parts_atomic(path, &parts)?;
     Ok(())
 }
 

@@ -576,8 +576,8 @@ impl TableAdam {
     pub fn to_bytes(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(20 + 8 * self.m.len());
         out.extend_from_slice(&self.header());
-        for x in self.m.iter().chain(&self.v) {
-            out.extend_from_slice(&x.to_le_bytes());
+        for v in [&self.m, &self.v] {
+            crate::io::write_f32s(&mut out, v).expect("writing to memory");
         }
         out
     }

@@ -220,12 +220,8 @@ impl Checkpoints {
 
     /// Whether `round`'s fit has a saved state that has run every step.
     pub fn fit_done(&self, round: usize) -> bool {
-        self.newest(round).is_some_and(|(_, d)| {
-            fipt_core::io::read_text(&d.join("progress.json"))
-                .ok()
-                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                .is_some_and(|v| v["step"].is_u64() && v["step"] == v["total"])
-        })
+        self.newest(round)
+            .is_some_and(|(_, d)| FitProgress::saved_done(&d))
     }
 
     /// Removes the saved states of `round` and of every round after it.

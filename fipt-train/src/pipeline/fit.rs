@@ -273,10 +273,12 @@ impl FitProgress {
 
     /// Only the loss log of the progress `save` wrote into `dir`.
     pub fn load_log(dir: &Path) -> anyhow::Result<TrainLog> {
-        let path = dir.join(PROGRESS_FILE);
-        let p: ProgressFile = serde_json::from_str(&fipt_core::io::read_text(&path)?)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        Ok(p.log)
+        Ok(read_progress(dir)?.log)
+    }
+
+    /// Whether the progress `save` wrote into `dir` reads and has run every step.
+    pub fn saved_done(dir: &Path) -> bool {
+        read_progress(dir).is_ok_and(|p| p.step == p.total)
     }
 
     /// The progress `save` wrote into `dir`, for a fit over `store` with `schedule`; an error
@@ -288,8 +290,7 @@ impl FitProgress {
         schedule: &Schedule,
     ) -> anyhow::Result<Self> {
         let path = dir.join(PROGRESS_FILE);
-        let p: ProgressFile = serde_json::from_str(&fipt_core::io::read_text(&path)?)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let p = read_progress(dir)?;
         let shape = Shape::of(store, mode, schedule);
         // The last step closes a partial epoch.
         let (epochs, in_epoch) = if p.step == shape.steps {
@@ -328,6 +329,13 @@ impl FitProgress {
             sampler,
         })
     }
+}
+
+/// `dir/progress.json`, parsed; the error names the file.
+fn read_progress(dir: &Path) -> anyhow::Result<ProgressFile> {
+    let path = dir.join(PROGRESS_FILE);
+    serde_json::from_str(&fipt_core::io::read_text(&path)?)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// The batch sizes and step counts of a fit over a store.

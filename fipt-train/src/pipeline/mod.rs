@@ -427,7 +427,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
                 (tr, None)
             }
             None => (
-                fipt_core::model::Trainer::new(base_cfg(r), scene_box, &device, cfg.seed),
+                fipt_core::model::Trainer::new(base.clone(), scene_box, &device, cfg.seed),
                 None,
             ),
         };
