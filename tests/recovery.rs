@@ -186,7 +186,7 @@ fn shipped_fit_recovers_known_brdf_and_emitter() {
         pixels: data,
     };
     let plan = FitPlan {
-        cfg: t.model_config(t.grid.levels),
+        cfg: t.model_config(t.grid.levels, cfg.backend),
         scene_box: SceneBox {
             min: 0.0,
             max: EXTENT,

@@ -27,11 +27,23 @@ fn tmp(name: &str) -> PathBuf {
 }
 
 fn params(t: &Trainer) -> (Vec<Vec<f32>>, Vec<f32>) {
-    (t.net_params(), t.model.grid.table.clone())
+    (t.net_params(), t.table())
 }
 
 #[test]
 fn restored_fit_continues_bit_identically() {
+    restore_and_continue(false);
+}
+
+/// The same with the table resident on the device: its burn record (parameter ids included)
+/// and burn's Adam state of it are saved and restored.
+#[test]
+fn restored_device_grid_fit_continues_bit_identically() {
+    restore_and_continue(true);
+}
+
+fn restore_and_continue(device_grid: bool) {
+    let config = || config().with_device_grid(device_grid);
     let dev = Device::flex();
     let batches: Vec<Batch> = (0..6).map(|s| batch(256, 40 + s)).collect();
     let mut whole = Trainer::new(config(), UNIT, &dev, 5);
@@ -44,7 +56,7 @@ fn restored_fit_continues_bit_identically() {
     for b in &batches[..3] {
         first.step(b, SegMode::Semantic);
     }
-    let dir = tmp("ok");
+    let dir = tmp(if device_grid { "ok-dev" } else { "ok" });
     first.save_state(&dir).unwrap();
     drop(first);
     let mut resumed = Trainer::restore(config(), &dev, 5, &dir).unwrap();

@@ -264,7 +264,13 @@ pub fn pixel_store(views: usize) -> PixelStore {
 }
 
 /// Times `steps` training steps after `warmup` ones, each on the next batch of a shuffled pass
-/// over `store` (as an epoch does); returns per-step seconds, parameters and the phase means.
+/// over `store` (as an epoch does); returns per-step seconds, parameters, the phase means and
+/// the bytes moved between host and device per step.
+///
+/// On the device path (`cfg.device_grid`) the store is uploaded once and each step sends only
+/// its batch's indices; its losses stay on the device and are read every 25 steps, as in a fit.
+/// The device then runs ahead of the host, so per-step times are not separable: every step is
+/// given the mean of the timed loop, which ends with a read of the pending losses (a sync).
 fn time_steps(
     cfg: fipt_core::model::TrainConfig,
     backend: fipt_core::model::BackendKind,
@@ -273,7 +279,9 @@ fn time_steps(
     warmup: usize,
     steps: usize,
     mode: fipt_core::model::step::SegMode,
-) -> Result<(Vec<f64>, usize, serde_json::Value)> {
+) -> Result<(Vec<f64>, usize, serde_json::Value, serde_json::Value)> {
+    use fipt_core::model::step::{DeviceStore, StepLoss};
+    use fipt_core::model::transfer;
     let device = backend.device().map_err(anyhow::Error::msg)?;
     let sb = fipt_core::scene::SceneBox { min: 0.0, max: 1.0 };
     let mut tr = fipt_core::model::Trainer::new(cfg, sb, &device, 7);
@@ -281,23 +289,76 @@ fn time_steps(
     let mut order: Vec<u32> = (0..store.len() as u32).collect();
     Rng::new(11, 2).shuffle(&mut order);
     let mut batches = order.chunks(batch).cycle();
+    let ds = tr
+        .device_resident()
+        .then(|| DeviceStore::upload(&store.pixels, &tr.device));
+    let mut pending = Vec::new();
     for _ in 0..warmup {
-        tr.step(&store.batch(batches.next().expect("cycle")), mode);
+        let idx = batches.next().expect("cycle");
+        bench_step(&mut tr, ds.as_ref(), store, idx, mode, &mut pending);
     }
+    StepLoss::read_all(std::mem::take(&mut pending));
     tr.profile = Default::default();
-    let times = (0..steps)
-        .map(|_| {
-            let b = store.batch(batches.next().expect("cycle"));
-            let t = Instant::now();
-            tr.step(&b, mode);
-            t.elapsed().as_secs_f64()
-        })
-        .collect();
+    transfer::take();
+    let times: Vec<f64> = if ds.is_some() {
+        let t = Instant::now();
+        for _ in 0..steps {
+            let idx = batches.next().expect("cycle");
+            bench_step(&mut tr, ds.as_ref(), store, idx, mode, &mut pending);
+        }
+        StepLoss::read_all(std::mem::take(&mut pending));
+        vec![t.elapsed().as_secs_f64() / steps.max(1) as f64; steps]
+    } else {
+        (0..steps)
+            .map(|_| {
+                let idx = batches.next().expect("cycle");
+                // The host batch is gathered outside the timed step.
+                let b = store.batch(idx);
+                let t = Instant::now();
+                tr.step(&b, mode);
+                t.elapsed().as_secs_f64()
+            })
+            .collect()
+    };
+    let (up, down) = transfer::take();
+    let k = steps.max(1) as f64;
+    let bytes = json!({"grid": if ds.is_some() { "device" } else { "host" },
+        "upload_bytes_per_step": up as f64 / k, "download_bytes_per_step": down as f64 / k});
     let p = tr.profile;
     let k = p.steps.max(1) as f64;
     let phases = json!({"encode_s": p.encode / k, "forward_s": p.forward / k, "backward_s": p.backward / k,
         "grid_update_s": p.grid_update / k, "net_update_s": p.net_update / k});
-    Ok((times, params, phases))
+    Ok((times, params, phases, bytes))
+}
+
+/// One step of `time_steps` on the entries `idx`: from the device store (losses left pending,
+/// read every 25 steps) or from a host batch.
+fn bench_step(
+    tr: &mut fipt_core::model::Trainer,
+    ds: Option<&fipt_core::model::step::DeviceStore>,
+    store: &PixelStore,
+    idx: &[u32],
+    mode: fipt_core::model::step::SegMode,
+    pending: &mut Vec<fipt_core::model::step::StepLoss>,
+) {
+    use fipt_core::model::step::{SegMode, StepInput, StepLoss};
+    match ds {
+        Some(ds) => {
+            let host = (mode == SegMode::Semantic).then(|| store.batch(idx));
+            let input = StepInput::Device {
+                store: ds,
+                idx,
+                host: host.as_ref(),
+            };
+            pending.push(tr.step_on(input, mode));
+            if pending.len() == 25 {
+                StepLoss::read_all(std::mem::take(pending));
+            }
+        }
+        None => {
+            tr.step(&store.batch(idx), mode);
+        }
+    }
 }
 
 /// `bench step`: median time of one stage-2 training step at the reference model size and at a
@@ -309,6 +370,7 @@ pub fn step(
     batch: usize,
     steps: usize,
     peer_sizes: bool,
+    place: crate::config::GridPlace,
 ) -> Result<()> {
     use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig, step::SegMode};
     let grid = |levels, log2_table, scale| {
@@ -335,13 +397,14 @@ pub fn step(
     for (name, cfg) in configs {
         for &b in backends {
             for mode in [SegMode::Part, SegMode::Semantic] {
-                let (times, params, phases) =
-                    time_steps(cfg.clone(), b, &store, batch, 2, steps, mode)?;
+                let cfg = cfg.clone().with_device_grid(place.on_device(b));
+                let (times, params, phases, bytes) =
+                    time_steps(cfg, b, &store, batch, 2, steps, mode)?;
                 let med = median(times.clone());
                 let loss = format!("{mode:?}").to_lowercase();
                 if !as_json {
                     println!(
-                        "{name:>10} {:>8} {loss:>8}: {:.1} ms/step (batch {batch}, {params} params) {phases}",
+                        "{name:>10} {:>8} {loss:>8}: {:.1} ms/step (batch {batch}, {params} params) {phases} {bytes}",
                         b.name(),
                         med * 1e3
                     );
@@ -349,7 +412,7 @@ pub fn step(
                 rows.push(
                     json!({"config": name, "backend": b.name(), "seg_loss": loss,
                     "batch": batch, "params": params, "median_s": med, "times_s": times,
-                    "phases_mean_s": phases}),
+                    "phases_mean_s": phases, "transfer": bytes}),
                 );
             }
         }

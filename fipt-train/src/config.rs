@@ -96,6 +96,44 @@ pub enum SegChoice {
     None,
 }
 
+/// Where the hash grid lives during the fit (`fipt_core::model::hashgrid_device`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GridPlace {
+    /// On the device for the GPU backends (wgpu, cuda), the fused host op on the CPU backends.
+    Auto,
+    /// The fused host op with its sparse Adam (the CPU path).
+    Host,
+    /// Resident on the device: table, hashing, gather, scatter and a dense Adam as tensor ops,
+    /// the pixels on the device too.
+    Device,
+}
+
+impl std::str::FromStr for GridPlace {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(GridPlace::Auto),
+            "host" => Ok(GridPlace::Host),
+            "device" => Ok(GridPlace::Device),
+            _ => Err(format!(
+                "unknown grid place '{s}' (expected auto, host or device)"
+            )),
+        }
+    }
+}
+
+impl GridPlace {
+    /// Whether the grid goes on the device with `backend`.
+    pub fn on_device(self, backend: BackendKind) -> bool {
+        match self {
+            GridPlace::Auto => backend.is_gpu(),
+            GridPlace::Host => false,
+            GridPlace::Device => true,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainSection {
@@ -126,6 +164,9 @@ pub struct TrainSection {
     pub emission_freqs: usize,
     pub emission_depth: usize,
     pub emission_width: usize,
+    /// Where the hash grid lives (`auto`: on the device for wgpu, on the host for the CPU
+    /// backends).
+    pub grid_place: GridPlace,
 }
 
 impl Default for TrainSection {
@@ -150,6 +191,7 @@ impl Default for TrainSection {
             emission_freqs: 10,
             emission_depth: 6,
             emission_width: 128,
+            grid_place: GridPlace::Auto,
         }
     }
 }
@@ -169,8 +211,10 @@ impl TrainSection {
     }
 
     /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`).
-    pub fn model_config(&self, levels: usize) -> TrainConfig {
+    /// The model's config with `levels` grid levels, for a fit on `backend`.
+    pub fn model_config(&self, levels: usize, backend: BackendKind) -> TrainConfig {
         TrainConfig::new()
+            .with_device_grid(self.grid_place.on_device(backend))
             .with_lr(self.lr)
             .with_lambda_e(self.lambda_e)
             .with_lambda_d(self.lambda_d)

@@ -82,7 +82,8 @@ enum Cmd {
     Run {
         #[command(flatten)]
         job: JobArgs,
-        /// Backend: flex, ndarray or wgpu (overrides the config).
+        /// Backend: flex, ndarray, wgpu or cuda (overrides the config; the GPU ones need their cargo
+        /// feature).
         #[arg(long)]
         backend: Option<BackendKind>,
         /// No progress bars; print metrics.json to stdout.
@@ -314,7 +315,7 @@ enum BenchCmd {
     /// Median time of one training step of the fit (reference and CPU-sized models, part and
     /// semantic losses, shuffled batches of a realistic pixel store).
     Step {
-        /// Backend(s) to time: flex, ndarray, wgpu (default: flex and ndarray).
+        /// Backend(s) to time: flex, ndarray, wgpu, cuda (default: flex and ndarray).
         #[arg(long)]
         backend: Vec<BackendKind>,
         #[arg(long)]
@@ -327,6 +328,9 @@ enum BenchCmd {
         /// Also time the peers' `--cpu-config` sizes (16 levels, 2^16 entries, scale 1.3).
         #[arg(long)]
         peer_sizes: bool,
+        /// Where the hash grid lives: auto (on the device for wgpu), host or device.
+        #[arg(long, default_value = "auto")]
+        grid: fipt_train::config::GridPlace,
     },
 }
 
@@ -571,13 +575,14 @@ fn main() {
                 batch,
                 steps,
                 peer_sizes,
+                grid,
             } => {
                 let b = if backend.is_empty() {
                     vec![BackendKind::Flex, BackendKind::Ndarray]
                 } else {
                     backend
                 };
-                bench::step(&b, json, batch, steps, peer_sizes)
+                bench::step(&b, json, batch, steps, peer_sizes, grid)
             }
         },
     };

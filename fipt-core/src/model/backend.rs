@@ -1,4 +1,6 @@
-//! Run-time backend choice: the CPU backends (flex, ndarray) and wgpu (cargo feature `wgpu`).
+//! Run-time backend choice: the CPU backends (flex, ndarray), wgpu (cargo feature `wgpu`) and
+//! CUDA (cargo feature `cuda`: burn's CUDA runtime, which loads the driver at run time, so it
+//! builds without a CUDA toolkit).
 //!
 //! Owns: the mapping from a backend name to a burn `Device`. Must not touch: model code.
 
@@ -14,6 +16,8 @@ pub enum BackendKind {
     Ndarray,
     /// wgpu (Vulkan/Metal/DX12); only with the `wgpu` cargo feature.
     Wgpu,
+    /// CUDA on the first NVIDIA GPU; only with the `cuda` cargo feature.
+    Cuda,
 }
 
 impl BackendKind {
@@ -27,7 +31,13 @@ impl BackendKind {
             #[allow(deprecated)]
             BackendKind::Ndarray => Ok(Device::ndarray()),
             BackendKind::Wgpu => wgpu_device(),
+            BackendKind::Cuda => cuda_device(),
         }
+    }
+
+    /// Whether this is a GPU backend (where the hash grid goes on the device by default).
+    pub fn is_gpu(self) -> bool {
+        matches!(self, BackendKind::Wgpu | BackendKind::Cuda)
     }
 
     pub fn name(self) -> &'static str {
@@ -35,6 +45,7 @@ impl BackendKind {
             BackendKind::Flex => "flex",
             BackendKind::Ndarray => "ndarray",
             BackendKind::Wgpu => "wgpu",
+            BackendKind::Cuda => "cuda",
         }
     }
 }
@@ -49,6 +60,16 @@ fn wgpu_device() -> Result<Device, String> {
     Err("this build has no wgpu backend: rebuild with `--features wgpu`".into())
 }
 
+#[cfg(feature = "cuda")]
+fn cuda_device() -> Result<Device, String> {
+    Ok(Device::cuda(0))
+}
+
+#[cfg(not(feature = "cuda"))]
+fn cuda_device() -> Result<Device, String> {
+    Err("this build has no CUDA backend: rebuild with `--features cuda`".into())
+}
+
 impl FromStr for BackendKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -56,8 +77,9 @@ impl FromStr for BackendKind {
             "flex" => Ok(BackendKind::Flex),
             "ndarray" => Ok(BackendKind::Ndarray),
             "wgpu" => Ok(BackendKind::Wgpu),
+            "cuda" => Ok(BackendKind::Cuda),
             _ => Err(format!(
-                "unknown backend '{s}' (expected flex, ndarray or wgpu)"
+                "unknown backend '{s}' (expected flex, ndarray, wgpu or cuda)"
             )),
         }
     }

@@ -8,6 +8,7 @@ use super::fields::{
     EmissionMask, EmissionMaskConfig, MaterialFieldConfig, Mlp, alpha_from_raw, decode_material,
 };
 use super::hashgrid::HashGrid;
+use super::hashgrid_device::{self, GridTables};
 use crate::scene::SceneBox;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -59,6 +60,9 @@ pub struct FiptModel {
     pub spec: ModelSpec,
     pub grid: HashGrid,
     pub nets: Nets,
+    /// The table resident on the device (`hashgrid_device`), when the model was fitted or is
+    /// queried there; `grid.table` then holds its last host copy (`sync_host_table`).
+    pub device_grid: Option<GridTables>,
     /// The device the networks live on (an autodiff device while training).
     pub device: Device,
 }
@@ -108,18 +112,54 @@ impl FiptModel {
                 material: field.mlp,
                 emission,
             },
+            device_grid: None,
             device: device.clone(),
         }
     }
 
-    /// The material field at unit-cube points (inference, batched, no autodiff).
+    /// Uploads the table onto the networks' device, so that queries encode there
+    /// (`hashgrid_device`) instead of on the host.
+    pub fn upload_table(&mut self) {
+        self.device_grid = Some(GridTables::from_host(&self.grid, &self.device));
+    }
+
+    /// Copies a device-resident table into `grid.table`.
+    pub fn sync_host_table(&mut self) {
+        if let Some(t) = &self.device_grid {
+            self.grid.table = t.to_host();
+        }
+    }
+
+    /// The table in the host layout, from the device if it lives there.
+    pub fn current_table(&self) -> Vec<f32> {
+        match &self.device_grid {
+            Some(t) => t.to_host(),
+            None => self.grid.table.clone(),
+        }
+    }
+
+    /// The material field at unit-cube points (inference, batched, no autodiff). The encoding
+    /// runs on the device when the table is there (`device_grid`), else on the host.
     pub fn material(&self, x_unit: &[[f32; 3]]) -> MaterialValues {
         let mlp = self.nets.material.valid();
+        let tables = self.device_grid.as_ref().map(|t| t.valid());
         let dev = self.inference_device();
         let mut out = MaterialValues::default();
-        for chunk in x_unit.chunks(INFER_CHUNK) {
+        // On the device, larger batches (fewer launches; the gathers are chunked anyway).
+        let chunk_len = if tables.is_some() {
+            4 * INFER_CHUNK
+        } else {
+            INFER_CHUNK
+        };
+        for chunk in x_unit.chunks(chunk_len) {
             let n = chunk.len();
-            let enc = tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev);
+            let enc = match &tables {
+                Some(t) => {
+                    let x = tensor2(chunk.iter().flatten().copied().collect(), [n, 3], &dev);
+                    hashgrid_device::encode(&self.grid.levels, t, x)
+                }
+                None => tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev),
+            };
             let m = decode_material(mlp.forward(enc));
             out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));
             out.sigma
@@ -197,14 +237,14 @@ impl FiptModel {
         };
         let _ = std::fs::remove_file(dir.join(other));
         let path = dir.join(name);
+        let device_table = self.device_grid.as_ref().map(|t| t.to_host());
+        let table = device_table.as_deref().unwrap_or(&self.grid.table);
         match format {
             TableFormat::F32 => {
-                crate::io::write_parts_atomic(&path, &[crate::io::Part::F32s(&self.grid.table)])
+                crate::io::write_parts_atomic(&path, &[crate::io::Part::F32s(table)])
             }
             TableFormat::F16 => {
-                let bytes: Vec<u8> = self
-                    .grid
-                    .table
+                let bytes: Vec<u8> = table
                     .iter()
                     .flat_map(|&x| half::f16::from_f32(x).to_le_bytes())
                     .collect();

@@ -155,7 +155,8 @@ pub struct HashGrid {
     pub table: Vec<f32>,
 }
 
-const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+/// The spatial hash's primes (one definition for the host op and `hashgrid_device`).
+pub(crate) const PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 
 impl HashGridConfig {
     /// The finest level's resolution `init` may build (a cube of 2^20 cells a side).

@@ -2,8 +2,8 @@
 //!
 //! Owns: tone mapping and every loss term. Must not touch: which pixels are in a batch.
 
-use super::gather::{scatter_add, select_1d, select_rows};
-use burn::tensor::{Device, Tensor, TensorData};
+use super::gather::{scatter_add, scatter_add_dev, select_1d_dev, select_rows};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 use rayon::prelude::*;
 
 /// The sRGB OETF Γ, no clamp: 12.92x for x ≤ 0.0031308, else 1.055·x^(1/2.4) − 0.055.
@@ -35,21 +35,29 @@ pub fn diffuse_loss(sigma: Tensor<2>, metallic: Tensor<2>, weight: f32) -> Tenso
     (sigma.sub_scalar(1.0).abs().mean() + metallic.mean()).mul_scalar(weight)
 }
 
-/// Mean of `v` per label (`labels` compact in 0..n_labels), gathered back to every pixel.
-fn weighted_label_mean(v: Tensor<1>, w: Tensor<1>, labels: &[i64], n_labels: usize) -> Tensor<1> {
-    let sw = scatter_add(n_labels, labels, w.clone());
-    let swv = scatter_add(n_labels, labels, w * v);
-    select_1d(swv / sw, labels)
+/// Mean of `v` per label (`labels` in 0..n_labels, on the device), weighted by `w` (> 0),
+/// gathered back to every pixel. A label no pixel carries has weight sum 0: the clamp keeps its
+/// (never gathered) mean and its gradient finite.
+fn weighted_label_mean(
+    v: Tensor<1>,
+    w: Tensor<1>,
+    labels: Tensor<1, Int>,
+    n_labels: usize,
+) -> Tensor<1> {
+    let sw = scatter_add_dev(n_labels, labels.clone(), w.clone()).clamp_min(1e-12);
+    let swv = scatter_add_dev(n_labels, labels.clone(), w * v);
+    select_1d_dev(swv / sw, labels)
 }
 
 /// Eq. 18–19 (part variant): per segment, weighted means of σ and m with weights
 /// w = mean_rgb(specular shading).detach() + 1e-4; L = λ·(mean|m − m̄_s| + mean|σ − σ̄_s|).
-/// `seg` holds compact segment ids 0..n_seg−1. Gradients flow through the means too.
+/// `seg` holds segment ids in 0..n_seg (on the device; ids no pixel of the batch carries are
+/// allowed). Gradients flow through the means too.
 pub fn part_loss(
     sigma: Tensor<2>,
     metallic: Tensor<2>,
     spec: Tensor<2>,
-    seg: &[i64],
+    seg: Tensor<1, Int>,
     n_seg: usize,
     weight: f32,
 ) -> Tensor<1> {
@@ -57,7 +65,7 @@ pub fn part_loss(
     let w = spec.detach().mean_dim(1).add_scalar(1e-4).reshape([n]);
     let s = sigma.reshape([n]);
     let m = metallic.reshape([n]);
-    let dm = (m.clone() - weighted_label_mean(m, w.clone(), seg, n_seg))
+    let dm = (m.clone() - weighted_label_mean(m, w.clone(), seg.clone(), n_seg))
         .abs()
         .mean();
     let ds = (s.clone() - weighted_label_mean(s, w, seg, n_seg))

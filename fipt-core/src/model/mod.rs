@@ -9,11 +9,13 @@ pub mod fields;
 pub mod fipt_model;
 pub mod gather;
 pub mod hashgrid;
+pub mod hashgrid_device;
 pub mod hashgrid_tensor;
 pub mod loss;
 pub mod pe;
 pub mod render;
 pub mod step;
+pub mod transfer;
 
 pub use backend::BackendKind;
 pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};

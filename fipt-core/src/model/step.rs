@@ -1,29 +1,44 @@
 //! One stage-2 training step (paper §4.4–4.5, reference §2.3): forward through both fields and
-//! the factorised renderer, the loss parts, backward, Adam. The hash grid is a fused host op:
-//! its encoding enters the graph as a leaf, and the leaf's gradient is scattered into the table
-//! by `HashGrid::backward_table` and applied by `TableAdam`; the MLPs use burn's Adam.
+//! the factorised renderer, the loss parts, backward, Adam. The hash grid runs one of two ways
+//! (`TrainConfig::device_grid`):
+//! - the fused host op (CPU backends): its encoding enters the graph as a leaf, and the leaf's
+//!   gradient is scattered into the table by `HashGrid::backward_table` and applied by the sparse
+//!   `TableAdam`;
+//! - resident on the device (GPU backends, `hashgrid_device`): the table is a set of burn
+//!   parameters updated by burn's (dense) Adam, and with a `DeviceStore` the pixels live on the
+//!   device too, so a step uploads only its batch's indices and its losses are read back only
+//!   when the caller asks (`StepLoss`).
+//!
+//! The MLPs use burn's Adam on both paths.
 //!
 //! Owns: `TrainConfig`, `Batch`, `Trainer::step`. Must not touch: pixel sampling, data loading.
 
 use super::brdf::reflectances;
 use super::fields::{EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material};
 use super::fipt_model::{FiptModel, ModelSpec, TableFormat};
+use super::gather::{index_tensor, select_int_dev, select_rows_dev};
 use super::hashgrid::{TableAdam, TableGrad};
+use super::hashgrid_device::{self, GridTables};
 use super::loss;
 use super::render::{Shadings, composite, render};
+use super::transfer;
 use crate::rng::Rng;
 use crate::scene::SceneBox;
 use crate::shading::ShadingLayout;
 use burn::config::Config;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Tensor, TensorData};
-use std::collections::HashMap;
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 use std::time::Instant;
 
 const OPTIM_FILE: &str = "optim.bpk";
 const TABLE_ADAM_FILE: &str = "table_adam.bin";
+/// The device path's table (a burn record, which keeps the parameter ids its Adam state refers
+/// to) and that Adam state.
+const GRID_TABLES_FILE: &str = "grid_tables.bpk";
+const GRID_OPTIM_FILE: &str = "grid_optim.bpk";
 const TRAINER_FILE: &str = "trainer.json";
 
 /// Which segmentation loss to use.
@@ -73,6 +88,10 @@ pub struct TrainConfig {
     /// Random partners per pixel in Eq. 20.
     #[config(default = 1024)]
     pub sem_partners: usize,
+    /// The hash grid resident on the device (`hashgrid_device`: table, indices, gradient and a
+    /// dense Adam as device tensors) instead of the fused host op with its sparse Adam.
+    #[config(default = false)]
+    pub device_grid: bool,
 }
 
 /// A batch of training pixels as plain host arrays.
@@ -91,6 +110,28 @@ pub struct Batch {
 }
 
 impl Batch {
+    /// `n` random training pixels in a 4 × 2.7 × 3 m room, for tests and benchmarks: unit-cube
+    /// and world positions, positive shadings, photo values (an emitter in one corner, 20×
+    /// brighter) and three segments (0 and 2 by depth, 7 on the emitter).
+    pub fn synthetic(n: usize, seed: u64) -> Batch {
+        let mut r = Rng::new(seed, 1);
+        let mut b = Batch::default();
+        for _ in 0..n {
+            let x = [r.next_f32(), r.next_f32(), r.next_f32()];
+            b.x_unit.push(x);
+            b.x_world
+                .push([4.0 * x[0] - 2.0, 2.7 * x[1], 3.0 * x[2] - 1.5]);
+            b.shadings.extend(
+                (0..ShadingLayout::DIM).map(|k| 0.05 + r.next_f32() / (1.0 + k as f32 * 0.1)),
+            );
+            let emitter = x[0] > 0.8 && x[1] > 0.8;
+            let scale = if emitter { 20.0 } else { 1.0 };
+            b.gt.extend((0..3).map(|_| scale * (0.05 + r.next_f32())));
+            b.seg.push(if emitter { 7 } else { 2 * (x[2] > 0.5) as i32 });
+        }
+        b
+    }
+
     pub fn len(&self) -> usize {
         self.x_unit.len()
     }
@@ -110,22 +151,206 @@ pub struct LossParts {
     pub seg: f32,
 }
 
+impl LossParts {
+    fn from_slice(v: &[f32]) -> Self {
+        Self {
+            total: v[0],
+            color: v[1],
+            emission: v[2],
+            diffuse: v[3],
+            seg: v[4],
+        }
+    }
+}
+
+/// A step's loss parts: read already, or still on the device (`[total, color, emission,
+/// diffuse, seg]`) until `read` or `read_all` fetches them.
+#[derive(Clone, Debug)]
+pub enum StepLoss {
+    Ready(LossParts),
+    Pending(Box<Tensor<1>>),
+}
+
+impl StepLoss {
+    /// The values (one device read if pending).
+    pub fn read(self) -> LossParts {
+        Self::read_all(vec![self])[0]
+    }
+
+    /// The values of several steps, with one device read for all the pending ones.
+    pub fn read_all(losses: Vec<StepLoss>) -> Vec<LossParts> {
+        let pending: Vec<Tensor<1>> = losses
+            .iter()
+            .filter_map(|l| match l {
+                StepLoss::Pending(t) => Some((**t).clone()),
+                StepLoss::Ready(_) => None,
+            })
+            .collect();
+        let values = if pending.is_empty() {
+            Vec::new()
+        } else {
+            transfer::download(pending.len() * 5 * 4);
+            Tensor::cat(pending, 0)
+                .try_into_vec_as::<f32>()
+                .expect("f32 losses")
+        };
+        let mut k = 0;
+        losses
+            .into_iter()
+            .map(|l| match l {
+                StepLoss::Ready(p) => p,
+                StepLoss::Pending(_) => {
+                    k += 1;
+                    LossParts::from_slice(&values[5 * (k - 1)..5 * k])
+                }
+            })
+            .collect()
+    }
+}
+
+/// The training pixels resident on the device (the device path's pixel store): unit-cube and
+/// world positions, packed shadings, photo values and segment ids (made compact, 0..n_seg, in
+/// the order of the ids' values), uploaded once; a step then uploads only its batch's indices.
+pub struct DeviceStore {
+    pub x_unit: Tensor<2>,
+    pub x_world: Tensor<2>,
+    pub shadings: Tensor<2>,
+    pub gt: Tensor<2>,
+    pub seg: Tensor<1, Int>,
+    pub n_seg: usize,
+    pub len: usize,
+}
+
+impl DeviceStore {
+    /// Uploads every pixel of `pixels` onto `device`.
+    pub fn upload(pixels: &Batch, device: &Device) -> Self {
+        let n = pixels.len();
+        let ids: BTreeMap<i32, i64> = pixels
+            .seg
+            .iter()
+            .map(|&s| (s, 0))
+            .collect::<BTreeMap<_, _>>()
+            .into_keys()
+            .enumerate()
+            .map(|(k, s)| (s, k as i64))
+            .collect();
+        let seg: Vec<i64> = pixels.seg.iter().map(|s| ids[s]).collect();
+        Self {
+            x_unit: upload2(flat3(&pixels.x_unit), [n, 3], device),
+            x_world: upload2(flat3(&pixels.x_world), [n, 3], device),
+            shadings: upload2(pixels.shadings.clone(), [n, ShadingLayout::DIM], device),
+            gt: upload2(pixels.gt.clone(), [n, 3], device),
+            seg: index_tensor(&seg, device),
+            n_seg: ids.len(),
+            len: n,
+        }
+    }
+}
+
+/// What a step trains on.
+#[derive(Clone, Copy)]
+pub enum StepInput<'a> {
+    /// A batch gathered on the host and uploaded.
+    Host(&'a Batch),
+    /// Entries `idx` of a `DeviceStore` (only the indices are uploaded). The semantic loss
+    /// also needs the batch's labels and positions on the host (`host`, gathered there from the
+    /// host store); the part loss does not.
+    Device {
+        store: &'a DeviceStore,
+        idx: &'a [u32],
+        host: Option<&'a Batch>,
+    },
+}
+
+/// Segment ids made compact, 0..S−1 in order of first appearance, and S.
+fn compact_ids(seg: &[i32]) -> (Vec<i64>, usize) {
+    let mut map: HashMap<i32, i64> = HashMap::new();
+    let compact = seg
+        .iter()
+        .map(|s| {
+            let k = map.len() as i64;
+            *map.entry(*s).or_insert(k)
+        })
+        .collect();
+    (compact, map.len())
+}
+
+/// A step's pixels as device tensors (and, where the semantic loss needs them, host values).
+struct Pixels<'a> {
+    n: usize,
+    x_unit: Tensor<2>,
+    x_world: Tensor<2>,
+    shadings: Tensor<2>,
+    gt: Tensor<2>,
+    seg: Tensor<1, Int>,
+    n_seg: usize,
+    /// Unit-cube positions of the batch, for the host grid and the semantic weights.
+    host: Option<&'a Batch>,
+}
+
+impl<'a> Pixels<'a> {
+    fn of(input: StepInput<'a>, dev: &Device) -> Self {
+        match input {
+            StepInput::Host(b) => {
+                let n = b.len();
+                let (compact, n_seg) = compact_ids(&b.seg);
+                Pixels {
+                    n,
+                    x_unit: upload2(flat3(&b.x_unit), [n, 3], dev),
+                    x_world: upload2(flat3(&b.x_world), [n, 3], dev),
+                    shadings: upload2(b.shadings.clone(), [n, ShadingLayout::DIM], dev),
+                    gt: upload2(b.gt.clone(), [n, 3], dev),
+                    seg: index_tensor(&compact, dev),
+                    n_seg,
+                    host: Some(b),
+                }
+            }
+            StepInput::Device { store, idx, host } => {
+                let n = idx.len();
+                let i: Vec<i64> = idx.iter().map(|&i| i as i64).collect();
+                let i = index_tensor(&i, dev);
+                let rows = |t: &Tensor<2>| select_rows_dev(t.clone(), i.clone());
+                Pixels {
+                    n,
+                    x_unit: rows(&store.x_unit),
+                    x_world: rows(&store.x_world),
+                    shadings: rows(&store.shadings),
+                    gt: rows(&store.gt),
+                    seg: select_int_dev(store.seg.clone(), i.clone()),
+                    n_seg: store.n_seg,
+                    host,
+                }
+            }
+        }
+    }
+}
+
+/// How the hash table is optimised.
+enum GridOpt {
+    /// The fused host op's sparse table gradient and Adam.
+    Host { grad: TableGrad, adam: TableAdam },
+    /// burn's Adam on the device-resident table (`FiptModel::device_grid`).
+    Device { optim: ModuleOptimizer },
+}
+
 /// The fit: a `FiptModel` on an autodiff device and its optimisers.
 pub struct Trainer {
     pub cfg: TrainConfig,
     /// Autodiff device.
     pub device: Device,
-    /// The model being fitted.
+    /// The model being fitted. On the device path its host table (`model.grid.table`) is
+    /// brought up to date by `sync_host_table` (and by every save); in between it is stale.
     pub model: FiptModel,
     optim: ModuleOptimizer,
-    grid_grad: TableGrad,
-    grid_adam: TableAdam,
+    grid_opt: GridOpt,
     /// Seeds the semantic-loss partner draws, keyed by step: `gradients` and `step` at the
     /// same step see the same pairs.
     seed: u64,
     pub steps: u64,
     /// Accumulated time per phase of `step`.
     pub profile: StepProfile,
+    /// The host grid's batch positions, from the forward pass to the backward.
+    last_xs: Vec<[f32; 3]>,
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps.
@@ -144,7 +369,9 @@ pub struct StepProfile {
     pub steps: u64,
 }
 
-fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
+/// Host values onto the device (counted).
+fn upload2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
+    transfer::upload(v.len() * 4);
     Tensor::from_data(TensorData::new(v, shape), dev)
 }
 
@@ -152,15 +379,19 @@ fn flat3(v: &[[f32; 3]]) -> Vec<f32> {
     v.iter().flatten().copied().collect()
 }
 
-/// Backward from `total`: the gradients and, on the host, d total / d encoding.
-fn backward(enc: Tensor<2>, total: Tensor<1>) -> (burn::tensor::Gradients, Vec<f32>) {
-    let grads = total.backward();
-    let g_enc = enc
-        .grad(&grads)
-        .expect("encoding is a leaf of the graph")
-        .try_into_vec_as::<f32>()
-        .expect("f32 gradient");
-    (grads, g_enc)
+/// A device tensor read back to the host (counted).
+fn download(t: Tensor<2>) -> Vec<f32> {
+    let v = t.try_into_vec_as::<f32>().expect("f32");
+    transfer::download(v.len() * 4);
+    v
+}
+
+/// What the forward pass leaves for the backward: the host grid's encoding leaf (none on the
+/// device path), the total loss and the loss parts (detached, on the device).
+struct Forward {
+    enc_leaf: Option<Tensor<2>>,
+    total: Tensor<1>,
+    parts: Tensor<1>,
 }
 
 impl Trainer {
@@ -179,52 +410,92 @@ impl Trainer {
     }
 
     /// A trainer around `model` (on the autodiff `device`) with fresh optimisers, or burn's
-    /// Adam state from `record` (the table's moments are the caller's to restore).
+    /// Adam state of the networks from `record` (the table's state is the caller's to restore).
+    /// On the device path the model's host table is uploaded unless it is there already.
     fn assemble(
         cfg: TrainConfig,
         device: Device,
-        model: FiptModel,
+        mut model: FiptModel,
         seed: u64,
         record: Option<burn::optim::OptimizerRecord>,
     ) -> Self {
-        let mut optim = AdamConfig::new()
-            .with_beta_1(cfg.beta1)
-            .with_beta_2(cfg.beta2)
-            .with_epsilon(cfg.eps)
-            .init();
+        let adam = || {
+            AdamConfig::new()
+                .with_beta_1(cfg.beta1)
+                .with_beta_2(cfg.beta2)
+                .with_epsilon(cfg.eps)
+                .init()
+        };
+        let mut optim = adam();
         if let Some(r) = record {
             optim = optim.load_record(r);
         }
-        let grid_grad = TableGrad::new(&model.grid);
-        let grid_adam = TableAdam::new(&model.grid, cfg.beta1, cfg.beta2, cfg.eps);
+        let grid_opt = if cfg.device_grid {
+            if model.device_grid.is_none() {
+                model.device_grid = Some(GridTables::from_host(&model.grid, &device));
+            }
+            GridOpt::Device { optim: adam() }
+        } else {
+            model.device_grid = None;
+            GridOpt::Host {
+                grad: TableGrad::new(&model.grid),
+                adam: TableAdam::new(&model.grid, cfg.beta1, cfg.beta2, cfg.eps),
+            }
+        };
         Self {
             cfg,
             device,
             model,
             optim,
-            grid_grad,
-            grid_adam,
+            grid_opt,
             seed,
             steps: 0,
             profile: StepProfile::default(),
+            last_xs: Vec::new(),
         }
+    }
+
+    /// Whether the table lives on the device (`TrainConfig::device_grid`).
+    pub fn device_resident(&self) -> bool {
+        matches!(self.grid_opt, GridOpt::Device { .. })
+    }
+
+    /// Copies the device-resident table into `model.grid.table` (nothing on the host path).
+    pub fn sync_host_table(&mut self) {
+        self.model.sync_host_table();
     }
 
     /// Writes the whole state of the fit between two steps into `dir` (a checkpoint): the model
     /// with its f32 table (`FiptModel::save`), burn's Adam state of the networks (`optim.bpk`),
-    /// the table's Adam moments (`table_adam.bin`) and the step count (`trainer.json`). Each file
-    /// goes through a temporary name; the caller makes the folder appear atomically.
+    /// and the table's optimiser state: the host path's moments (`table_adam.bin`), or the
+    /// device path's table record and burn Adam state (`grid_tables.bpk`, `grid_optim.bpk`);
+    /// and the step count (`trainer.json`). Each file goes through a temporary name; the caller
+    /// makes the folder appear atomically.
     pub fn save_state(&self, dir: &Path) -> Result<(), String> {
         self.model.save(dir, TableFormat::F32)?;
-        let optim = self
-            .optim
-            .to_record()
-            .into_bytes()
-            .map_err(|e| format!("{}: {e:?}", dir.join(OPTIM_FILE).display()))?;
+        let record_bytes = |r: burn::optim::OptimizerRecord, name: &str| {
+            r.into_bytes()
+                .map_err(|e| format!("{}: {e:?}", dir.join(name).display()))
+        };
+        let optim = record_bytes(self.optim.to_record(), OPTIM_FILE)?;
         crate::io::write_bytes_atomic(&dir.join(OPTIM_FILE), &optim).map_err(|e| e.to_string())?;
-        self.grid_adam
-            .save(&dir.join(TABLE_ADAM_FILE))
-            .map_err(|e| e.to_string())?;
+        match &self.grid_opt {
+            GridOpt::Host { adam, .. } => adam
+                .save(&dir.join(TABLE_ADAM_FILE))
+                .map_err(|e| e.to_string())?,
+            GridOpt::Device { optim } => {
+                let tables = self.model.device_grid.as_ref().expect("device table");
+                let tmp = dir.join("grid_tables.tmp.bpk");
+                tables
+                    .clone()
+                    .save_file(&tmp)
+                    .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
+                std::fs::rename(&tmp, dir.join(GRID_TABLES_FILE)).map_err(|e| e.to_string())?;
+                let bytes = record_bytes(optim.to_record(), GRID_OPTIM_FILE)?;
+                crate::io::write_bytes_atomic(&dir.join(GRID_OPTIM_FILE), &bytes)
+                    .map_err(|e| e.to_string())?;
+            }
+        }
         let state = serde_json::json!({ "steps": self.steps });
         crate::io::write_bytes_atomic(&dir.join(TRAINER_FILE), state.to_string().as_bytes())
             .map_err(|e| e.to_string())
@@ -240,7 +511,7 @@ impl Trainer {
         dir: &Path,
     ) -> Result<Self, String> {
         let ad = device.clone().autodiff();
-        let model = FiptModel::load(dir, &ad)?;
+        let mut model = FiptModel::load(dir, &ad)?;
         let same = |a: serde_json::Result<serde_json::Value>,
                     b: serde_json::Result<serde_json::Value>| {
             matches!((a, b), (Ok(a), Ok(b)) if a == b)
@@ -257,87 +528,136 @@ impl Trainer {
                 dir.join("model.json").display()
             ));
         }
-        let optim_path = dir.join(OPTIM_FILE);
-        if !optim_path.is_file() {
-            return Err(format!("{}: missing", optim_path.display()));
-        }
-        let record = burn::optim::OptimizerRecord::load(&optim_path)
-            .map_err(|e| format!("{}: cannot read: {e:?}", optim_path.display()))?;
-        let adam_path = dir.join(TABLE_ADAM_FILE);
-        let adam = crate::io::read_bytes(&adam_path).map_err(|e| e.to_string())?;
+        let load_record = |name: &str| -> Result<burn::optim::OptimizerRecord, String> {
+            let path = dir.join(name);
+            if !path.is_file() {
+                return Err(format!("{}: missing", path.display()));
+            }
+            burn::optim::OptimizerRecord::load(&path)
+                .map_err(|e| format!("{}: cannot read: {e:?}", path.display()))
+        };
+        let record = load_record(OPTIM_FILE)?;
         let state_path = dir.join(TRAINER_FILE);
         let text = crate::io::read_text(&state_path).map_err(|e| e.to_string())?;
         let steps = serde_json::from_str::<serde_json::Value>(&text)
             .ok()
             .and_then(|v| v.get("steps")?.as_u64())
             .ok_or_else(|| format!("{}: no step count", state_path.display()))?;
+        if cfg.device_grid {
+            let path = dir.join(GRID_TABLES_FILE);
+            if !path.is_file() {
+                return Err(format!("{}: missing", path.display()));
+            }
+            let tables = GridTables::from_host(&model.grid, &ad)
+                .try_load_file(&path)
+                .map_err(|e| format!("{}: cannot load the table: {e:?}", path.display()))?;
+            if tables.to_host() != model.grid.table {
+                return Err(format!(
+                    "{}: differs from the checkpoint's hashgrid.bin",
+                    path.display()
+                ));
+            }
+            model.device_grid = Some(tables);
+        }
+        let grid_record = if cfg.device_grid {
+            Some(load_record(GRID_OPTIM_FILE)?)
+        } else {
+            None
+        };
         let mut t = Self::assemble(cfg, ad, model, seed, Some(record));
-        t.grid_adam
-            .load_bytes(&adam)
-            .map_err(|e| format!("{}: {e}", adam_path.display()))?;
+        match &mut t.grid_opt {
+            GridOpt::Host { adam, .. } => {
+                let adam_path = dir.join(TABLE_ADAM_FILE);
+                let bytes = crate::io::read_bytes(&adam_path).map_err(|e| e.to_string())?;
+                adam.load_bytes(&bytes)
+                    .map_err(|e| format!("{}: {e}", adam_path.display()))?;
+            }
+            GridOpt::Device { optim } => {
+                let r = grid_record.expect("loaded above");
+                *optim = std::mem::replace(optim, AdamConfig::new().init()).load_record(r);
+            }
+        }
         t.steps = steps;
         Ok(t)
     }
 
-    /// The forward pass: the encoding leaf, the total loss and its parts.
-    fn forward(&mut self, batch: &Batch, mode: SegMode) -> (Tensor<2>, Tensor<1>, LossParts) {
-        let n = batch.len();
+    /// The forward pass on `input`: the encoding leaf of the host grid, the total loss and the
+    /// loss parts.
+    fn forward(&mut self, input: StepInput, mode: SegMode) -> Forward {
         let dev = self.device.clone();
-        let d = self.model.grid.output_dim();
         let t0 = Instant::now();
-        let enc = tensor2(self.model.grid.encode(&batch.x_unit), [n, d], &dev).require_grad();
+        let px = Pixels::of(input, &dev);
+        let n = px.n;
+        let (enc, enc_leaf, xs) = match &self.model.device_grid {
+            Some(tables) => (
+                hashgrid_device::encode(&self.model.grid.levels, tables, px.x_unit.clone()),
+                false,
+                Vec::new(),
+            ),
+            None => {
+                let xs = host_positions(&px);
+                let d = self.model.grid.output_dim();
+                let enc = upload2(self.model.grid.encode(&xs), [n, d], &dev).require_grad();
+                (enc, true, xs)
+            }
+        };
         let t1 = Instant::now();
         let mat = decode_material(self.model.nets.material.forward(enc.clone()));
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
-        let sh = Shadings::from_packed(tensor2(
-            batch.shadings.clone(),
-            [n, ShadingLayout::DIM],
-            &dev,
-        ));
+        let sh = Shadings::from_packed(px.shadings.clone());
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
-        let raw = self
-            .model
-            .nets
-            .emission
-            .raw(tensor2(flat3(&batch.x_world), [n, 3], &dev));
+        let raw = self.model.nets.emission.raw(px.x_world.clone());
         let alpha = alpha_from_raw(raw.clone());
-        let gt = tensor2(batch.gt.clone(), [n, 3], &dev);
-        let lc = loss::color_loss(composite(pred, alpha, gt.clone()), gt);
+        let lc = loss::color_loss(composite(pred, alpha, px.gt.clone()), px.gt.clone());
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
         let ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
-        let lseg = self.seg_loss(batch, mode, &mat, spec);
+        let lseg = self.seg_loss(&px, mode, &mat, spec);
         let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();
-        let parts = LossParts {
-            total: total.clone().into_scalar(),
-            color: lc.into_scalar(),
-            emission: le.into_scalar(),
-            diffuse: ld.into_scalar(),
-            seg: lseg.into_scalar(),
-        };
+        let parts = Tensor::cat(vec![total.clone(), lc, le, ld, lseg], 0).detach();
         let p = &mut self.profile;
         p.encode += (t1 - t0).as_secs_f64();
         p.forward += t1.elapsed().as_secs_f64();
-        (enc, total, parts)
+        self.last_xs = xs;
+        Forward {
+            enc_leaf: enc_leaf.then_some(enc),
+            total,
+            parts,
+        }
     }
 
     /// One optimisation step on `batch` with segmentation loss `mode`.
     pub fn step(&mut self, batch: &Batch, mode: SegMode) -> LossParts {
-        let (enc, total, parts) = self.forward(batch, mode);
+        self.step_on(StepInput::Host(batch), mode).read()
+    }
+
+    /// One optimisation step on `input`. The host grid reads its loss at once (`Ready`); the
+    /// device path leaves it on the device (`Pending`) for the caller to read when it logs.
+    pub fn step_on(&mut self, input: StepInput, mode: SegMode) -> StepLoss {
+        let f = self.forward(input, mode);
         let t2 = Instant::now();
-        let (grads, g_enc) = backward(enc, total);
+        let mut grads = f.total.backward();
+        let g_enc = f.enc_leaf.map(|enc| {
+            let g = enc.grad(&grads).expect("encoding is a leaf of the graph");
+            download(g)
+        });
         let t3 = Instant::now();
-        let lr = self.cfg.lr as f32;
+        let lr = self.cfg.lr;
+        let xs = std::mem::take(&mut self.last_xs);
         let m = &mut self.model;
-        m.grid.backward_adam(
-            &batch.x_unit,
-            &g_enc,
-            &mut self.grid_grad,
-            &mut self.grid_adam,
-            lr,
-        );
+        match (&mut self.grid_opt, g_enc) {
+            (GridOpt::Host { grad, adam }, Some(g)) => {
+                m.grid.backward_adam(&xs, &g, grad, adam, lr as f32)
+            }
+            (GridOpt::Device { optim }, None) => {
+                let tables = m.device_grid.take().expect("device table");
+                let gp = GradientsParams::from_module(&mut grads, &tables);
+                m.device_grid = Some(optim.step(lr, tables, gp));
+            }
+            _ => unreachable!("the grid's optimiser matches where the table lives"),
+        }
         let t4 = Instant::now();
         let gp = GradientsParams::from_grads(grads, &self.model.nets);
-        self.model.nets = self.optim.step(self.cfg.lr, self.model.nets.clone(), gp);
+        self.model.nets = self.optim.step(lr, self.model.nets.clone(), gp);
         let t5 = Instant::now();
         let p = &mut self.profile;
         p.backward += (t3 - t2).as_secs_f64();
@@ -345,15 +665,43 @@ impl Trainer {
         p.net_update += (t5 - t4).as_secs_f64();
         p.steps += 1;
         self.steps += 1;
-        parts
+        if self.device_resident() {
+            StepLoss::Pending(Box::new(f.parts))
+        } else {
+            transfer::download(5 * 4);
+            StepLoss::Ready(LossParts::from_slice(
+                &f.parts.try_into_vec_as::<f32>().expect("f32 losses"),
+            ))
+        }
     }
 
     /// Forward and backward without an update: the loss parts, the gradient of the loss w.r.t.
-    /// the hash-grid encoding (N × `output_dim`, host) and w.r.t. every network parameter in
-    /// module order (host). For parity tests across backends and for diagnostics.
+    /// the hash-grid encoding (N × `output_dim`, host path only; empty on the device path),
+    /// w.r.t. the table (host layout, both paths) and w.r.t. every network parameter in module
+    /// order (host). For parity tests across backends and paths, and for diagnostics.
     pub fn gradients(&mut self, batch: &Batch, mode: SegMode) -> StepGradients {
-        let (enc, total, parts) = self.forward(batch, mode);
-        let (grads, encoding) = backward(enc, total);
+        let f = self.forward(StepInput::Host(batch), mode);
+        let grads = f.total.backward();
+        let parts = LossParts::from_slice(&f.parts.try_into_vec_as::<f32>().expect("f32"));
+        let (encoding, table) = match (&f.enc_leaf, &self.model.device_grid) {
+            (Some(enc), _) => {
+                let g = download(enc.grad(&grads).expect("encoding is a leaf"));
+                let mut tg = TableGrad::new(&self.model.grid);
+                self.model.grid.backward_table(&batch.x_unit, &g, &mut tg);
+                (g, tg.values)
+            }
+            (None, Some(tables)) => {
+                let mut t = Vec::with_capacity(tables.len());
+                for p in &tables.levels {
+                    t.extend(match p.val().grad(&grads) {
+                        Some(g) => g.try_into_vec_as::<f32>().expect("f32"),
+                        None => vec![0.0; p.val().shape().num_elements()],
+                    });
+                }
+                (Vec::new(), t)
+            }
+            (None, None) => unreachable!("a grid on the host has an encoding leaf"),
+        };
         let mut visitor = ParamGrads {
             grads: &grads,
             out: Vec::new(),
@@ -362,6 +710,7 @@ impl Trainer {
         StepGradients {
             parts,
             encoding,
+            table,
             params: visitor.out,
         }
     }
@@ -371,48 +720,44 @@ impl Trainer {
         self.model.net_params()
     }
 
+    /// The table in the host layout, wherever it lives.
+    pub fn table(&self) -> Vec<f32> {
+        self.model.current_table()
+    }
+
     fn seg_loss(
         &mut self,
-        batch: &Batch,
+        px: &Pixels,
         mode: SegMode,
         mat: &super::fields::Material,
         spec: Tensor<2>,
     ) -> Tensor<1> {
         let dev = self.device.clone();
-        // Compact the batch's segment ids to 0..S−1.
-        let mut map: HashMap<i32, i64> = HashMap::new();
-        let compact: Vec<i64> = batch
-            .seg
-            .iter()
-            .map(|s| {
-                let k = map.len() as i64;
-                *map.entry(*s).or_insert(k)
-            })
-            .collect();
         match mode {
             SegMode::None => Tensor::<1>::zeros([1], &dev),
             SegMode::Part => loss::part_loss(
                 mat.sigma.clone(),
                 mat.metallic.clone(),
                 spec,
-                &compact,
-                map.len(),
+                px.seg.clone(),
+                px.n_seg,
                 self.cfg.lambda_part,
             ),
             SegMode::Semantic => {
+                // Partner draws and bilateral weights on the host: the batch's labels and
+                // positions come from the host batch, the base colour is read back.
+                let b = px.host.expect(
+                    "the semantic loss needs the batch on the host (StepInput::Device { host })",
+                );
+                let (compact, n_labels) = compact_ids(&b.seg);
                 let labels: Vec<i32> = compact.iter().map(|&k| k as i32).collect();
                 let pairs = loss::semantic_pairs(
                     &labels,
                     self.cfg.sem_partners,
                     &mut Rng::new(self.seed ^ 0x5e9, self.steps),
                 );
-                let pos: Vec<f32> = batch
-                    .x_unit
-                    .iter()
-                    .flatten()
-                    .map(|v| 2.0 * v - 1.0)
-                    .collect();
-                let a: Vec<f32> = mat.a.clone().try_into_vec_as::<f32>().expect("f32");
+                let pos: Vec<f32> = b.x_unit.iter().flatten().map(|v| 2.0 * v - 1.0).collect();
+                let a = download(mat.a.clone());
                 let w = loss::semantic_weights(
                     &pairs,
                     &a,
@@ -420,13 +765,14 @@ impl Trainer {
                     self.cfg.sem_sigma_a,
                     self.cfg.sem_sigma_p,
                 );
+                transfer::upload(w.len() * 4 + pairs.partner.len() * 8);
                 loss::semantic_loss(
                     mat.sigma.clone(),
                     mat.metallic.clone(),
                     &pairs,
                     &w,
                     &compact,
-                    map.len(),
+                    n_labels,
                     self.cfg.lambda_sem,
                 )
             }
@@ -434,12 +780,25 @@ impl Trainer {
     }
 }
 
+/// The batch's unit-cube positions on the host: from the host batch, else read back.
+fn host_positions(px: &Pixels) -> Vec<[f32; 3]> {
+    match px.host {
+        Some(b) => b.x_unit.clone(),
+        None => download(px.x_unit.clone())
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+    }
+}
+
 /// What `Trainer::gradients` returns.
 #[derive(Clone, Debug)]
 pub struct StepGradients {
     pub parts: LossParts,
-    /// d loss / d encoding, N × `output_dim`.
+    /// d loss / d encoding, N × `output_dim` (host grid only; empty on the device path).
     pub encoding: Vec<f32>,
+    /// d loss / d table, in the host table's layout.
+    pub table: Vec<f32>,
     /// d loss / d parameter, one vector per parameter in module order (zeros where unused).
     pub params: Vec<Vec<f32>>,
 }

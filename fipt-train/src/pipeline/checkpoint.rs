@@ -280,7 +280,8 @@ impl Checkpoints {
 
     /// Saves the state of `round`'s fit after `p.step` steps as a new step folder (staged
     /// under a `.tmp` name, then renamed), then removes the older ones.
-    pub fn save(&self, round: usize, tr: &Trainer, p: &FitProgress) -> Result<()> {
+    pub fn save(&self, round: usize, tr: &Trainer, p: &mut FitProgress) -> Result<()> {
+        p.settle();
         let rd = self.round_dir(round);
         let name = format!("step{:07}", p.step);
         let fin = rd.join(&name);

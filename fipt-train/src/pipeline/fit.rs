@@ -7,7 +7,7 @@
 use super::pixels::PixelStore;
 use crate::progress::progress_bar;
 use fipt_core::brdf::{factorised_render, reflectances};
-use fipt_core::model::step::SegMode;
+use fipt_core::model::step::{DeviceStore, SegMode, StepInput, StepLoss};
 use fipt_core::model::{LossParts, TrainConfig, Trainer};
 use fipt_core::rng::Rng;
 use fipt_core::scene::SceneBox;
@@ -232,10 +232,14 @@ pub struct FitProgress {
     /// Steps of the whole fit.
     pub total: usize,
     pub log: TrainLog,
-    /// Loss sums of the current epoch, and its steps so far.
+    /// Loss sums of the current epoch, and its steps so far (steps settled into the log).
     sum: LossParts,
     in_epoch: usize,
     sampler: Sampler,
+    /// Losses of the steps after the log's last one, still on the device (`settle` reads them).
+    pending: Vec<StepLoss>,
+    /// Steps per epoch of the fit (for the epoch means).
+    per_epoch: usize,
 }
 
 /// The JSON part of `FitProgress` (the sampler goes into its own binary file).
@@ -257,8 +261,48 @@ impl FitProgress {
         self.step >= self.total
     }
 
-    /// Writes `progress.json` and `sampler.bin` into `dir`, each atomically.
+    /// Reads the pending losses (one device read) into the log and the epoch sums.
+    pub fn settle(&mut self) {
+        if self.pending.is_empty() {
+            return;
+        }
+        let first = self.step - self.pending.len();
+        let losses = StepLoss::read_all(std::mem::take(&mut self.pending));
+        for (k, l) in losses.into_iter().enumerate() {
+            self.account(first + k, l);
+        }
+    }
+
+    /// Logs step `s`'s loss; closes the epoch at its last step or the fit's.
+    fn account(&mut self, s: usize, l: LossParts) {
+        self.log.step_total.push(l.total);
+        self.sum.total += l.total;
+        self.sum.color += l.color;
+        self.sum.emission += l.emission;
+        self.sum.diffuse += l.diffuse;
+        self.sum.seg += l.seg;
+        self.in_epoch += 1;
+        if self.in_epoch == self.per_epoch || s + 1 == self.total {
+            let n = self.in_epoch as f32;
+            self.log.epochs.push(LossParts {
+                total: self.sum.total / n,
+                color: self.sum.color / n,
+                emission: self.sum.emission / n,
+                diffuse: self.sum.diffuse / n,
+                seg: self.sum.seg / n,
+            });
+            self.sum = LossParts::default();
+            self.in_epoch = 0;
+        }
+    }
+
+    /// Writes `progress.json` and `sampler.bin` into `dir`, each atomically. The progress must
+    /// be settled (`settle`).
     pub fn save(&self, dir: &Path) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.pending.is_empty(),
+            "internal: saving a fit progress with unread losses"
+        );
         let p = ProgressFile {
             step: self.step,
             total: self.total,
@@ -327,6 +371,8 @@ impl FitProgress {
             sum: p.sum,
             in_epoch: p.in_epoch,
             sampler,
+            pending: Vec::new(),
+            per_epoch: shape.steps_per_epoch,
         })
     }
 }
@@ -410,14 +456,15 @@ pub struct FitRun<'a> {
 
 /// Runs the schedule on `tr`, from the start or from `resume` (the progress saved with `tr`'s
 /// state), calling `after_step` after every step with the trainer and the progress: the place
-/// to save a checkpoint, or to stop the fit by returning an error. `tr` must hold the step's
+/// to save a checkpoint (the progress may hold losses still on the device; `settle` reads
+/// them, and `Checkpoints::save` does), or to stop the fit by returning an error. `tr` must hold the step's
 /// base config (the schedule sets the learning rate and λ_d of each step from it).
 pub fn fit_resumable(
     mut tr: Trainer,
     store: &PixelStore,
     run: &FitRun,
     resume: Option<FitProgress>,
-    after_step: &mut dyn FnMut(&Trainer, &FitProgress) -> anyhow::Result<()>,
+    after_step: &mut dyn FnMut(&Trainer, &mut FitProgress) -> anyhow::Result<()>,
 ) -> anyhow::Result<(Trainer, FitProgress)> {
     let schedule = run.schedule;
     let shape = Shape::of(store, run.mode, schedule);
@@ -428,49 +475,62 @@ pub fn fit_resumable(
         sum: LossParts::default(),
         in_epoch: 0,
         sampler: Sampler::new(store, run.seed, shape.balanced > 0),
+        pending: Vec::new(),
+        per_epoch: shape.steps_per_epoch,
     });
     let pb = progress_bar(shape.steps as u64, "train", run.show_progress);
     pb.set_position(p.step as u64);
     let mut idx = Vec::with_capacity(shape.batch);
     let lambda_d = tr.cfg.lambda_d;
+    // The device path keeps the pixels on the device and uploads only each batch's indices;
+    // its losses are read every `LOSS_READ_EVERY` steps (and at every epoch's end), in one read.
+    let device_store = tr
+        .device_resident()
+        .then(|| DeviceStore::upload(&store.pixels, &tr.device));
     while p.step < shape.steps {
         let s = p.step;
         p.sampler
             .draw(shape.batch - shape.balanced, shape.balanced, &mut idx);
         tr.cfg.lr = schedule.lr_at(s, shape.steps);
         tr.cfg.lambda_d = lambda_d * schedule.lambda_d_at(s, shape.steps);
-        let l = tr.step(&store.batch(&idx), run.mode);
+        let l = match &device_store {
+            Some(ds) => {
+                let host = (run.mode == SegMode::Semantic).then(|| store.batch(&idx));
+                tr.step_on(
+                    StepInput::Device {
+                        store: ds,
+                        idx: &idx,
+                        host: host.as_ref(),
+                    },
+                    run.mode,
+                )
+            }
+            None => StepLoss::Ready(tr.step(&store.batch(&idx), run.mode)),
+        };
         tr.cfg.lambda_d = lambda_d;
-        p.log.step_total.push(l.total);
-        p.sum.total += l.total;
-        p.sum.color += l.color;
-        p.sum.emission += l.emission;
-        p.sum.diffuse += l.diffuse;
-        p.sum.seg += l.seg;
-        p.in_epoch += 1;
-        if p.in_epoch == shape.steps_per_epoch || s + 1 == shape.steps {
-            let n = p.in_epoch as f32;
-            p.log.epochs.push(LossParts {
-                total: p.sum.total / n,
-                color: p.sum.color / n,
-                emission: p.sum.emission / n,
-                diffuse: p.sum.diffuse / n,
-                seg: p.sum.seg / n,
-            });
-            p.sum = LossParts::default();
-            p.in_epoch = 0;
-        }
+        p.pending.push(l);
         p.step += 1;
-        pb.set_message(format!("loss {:.4}", l.total));
+        let epoch_end = (p.in_epoch + p.pending.len()) == shape.steps_per_epoch;
+        if device_store.is_none() || p.pending.len() >= LOSS_READ_EVERY || epoch_end || p.done() {
+            p.settle();
+            if let Some(l) = p.log.step_total.last() {
+                pb.set_message(format!("loss {l:.4}"));
+            }
+        }
         pb.inc(1);
-        if let Err(e) = after_step(&tr, &p) {
+        if let Err(e) = after_step(&tr, &mut p) {
             pb.finish_and_clear();
             return Err(e);
         }
     }
+    p.settle();
+    tr.sync_host_table();
     pb.finish_and_clear();
     Ok((tr, p))
 }
+
+/// Steps between two reads of the device path's losses.
+const LOSS_READ_EVERY: usize = 25;
 
 #[cfg(test)]
 pub(crate) mod tests {
@@ -521,7 +581,10 @@ pub(crate) mod tests {
             lambda_d_end: 0.5,
             ..Schedule::reference(1, 64, 1e-2)
         };
-        (train.model_config(3), schedule)
+        (
+            train.model_config(3, fipt_core::model::BackendKind::Flex),
+            schedule,
+        )
     }
 
     /// A fit stopped after some steps, saved (`Checkpoints::save`), restored and continued
@@ -529,10 +592,22 @@ pub(crate) mod tests {
     /// sampler state of another store is refused with the file named.
     #[test]
     fn interrupted_fit_continues_exactly() {
+        interrupted_fit(false);
+    }
+
+    /// The same on the device path: pixels in a `DeviceStore`, losses read in blocks (settled
+    /// at each epoch's end and before the save), the table and its Adam state on the device.
+    #[test]
+    fn interrupted_device_grid_fit_continues_exactly() {
+        interrupted_fit(true);
+    }
+
+    fn interrupted_fit(device_grid: bool) {
         use crate::pipeline::checkpoint::Checkpoints;
         let build = toy_store;
         let st = build(600);
         let (cfg, schedule) = toy_fit();
+        let cfg = cfg.with_device_grid(device_grid);
         let device = burn::tensor::Device::flex();
         let scene_box = SceneBox { min: 0.0, max: 1.0 };
         let run = FitRun {
@@ -543,8 +618,15 @@ pub(crate) mod tests {
         };
         let fresh = || Trainer::new(cfg.clone(), scene_box, &device, 3);
         let (whole, pw) = fit_resumable(fresh(), &st, &run, None, &mut |_, _| Ok(())).unwrap();
+        assert_eq!(whole.device_resident(), device_grid);
+        assert_eq!(pw.log.step_total.len(), 25);
+        assert_eq!(pw.log.epochs.len(), 3);
+        assert!(pw.log.step_total.iter().all(|l| l.is_finite() && *l > 0.0));
 
-        let dir = std::env::temp_dir().join(format!("fipt-fit-resume-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!(
+            "fipt-fit-resume-{device_grid}-{}",
+            std::process::id()
+        ));
         let _ = std::fs::remove_dir_all(&dir);
         let ck = Checkpoints {
             dir: dir.clone(),

@@ -273,7 +273,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
     let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
     let footprint = pixels::pixel_footprint(&ds.train, &baked.hits, &scene_box);
     let grid_levels = cfg.train.grid.levels_for(footprint);
-    let model_cfg = cfg.train.model_config(grid_levels);
+    let model_cfg = cfg.train.model_config(grid_levels, cfg.backend);
     let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
     // Round r's trainer config before its schedule sets the rate and λ_d of each step.
     let base_cfg = |r: usize| {
@@ -432,7 +432,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             ),
         };
         let mut ck_s = 0.0;
-        let (tr, p) = fit::fit_resumable(tr0, st, &run, progress, &mut |tr, p| {
+        let (tr, mut p) = fit::fit_resumable(tr0, st, &run, progress, &mut |tr, p| {
             // The flag is read once: a stop always follows a save of this very step.
             let stop = crate::interrupt::requested();
             if stop || ck.due(p) {
@@ -451,7 +451,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             }
             Ok(())
         })?;
-        ck.save(r, &tr, &p)?;
+        ck.save(r, &tr, &mut p)?;
         times.checkpoint_s += ck_s;
         train_s = lap(&mut t);
         times.train_s += train_s;
