@@ -315,7 +315,7 @@ enum BenchCmd {
     /// Median time of one training step of the fit (reference and CPU-sized models, part and
     /// semantic losses, shuffled batches of a realistic pixel store).
     Step {
-        /// Backend(s) to time: flex, ndarray, wgpu, cuda (default: flex and ndarray).
+        /// Backend(s) to time: flex, ndarray, wgpu, cuda (default: flex).
         #[arg(long)]
         backend: Vec<BackendKind>,
         #[arg(long)]
@@ -578,7 +578,7 @@ fn main() {
                 grid,
             } => {
                 let b = if backend.is_empty() {
-                    vec![BackendKind::Flex, BackendKind::Ndarray]
+                    vec![BackendKind::Flex]
                 } else {
                     backend
                 };

@@ -1,4 +1,4 @@
-//! Run-time backend choice: the CPU backends (flex, ndarray), wgpu (cargo feature `wgpu`) and
+//! Run-time backend choice: the CPU backends (flex; ndarray with the cargo feature `ndarray`), wgpu (cargo feature `wgpu`) and
 //! CUDA (cargo feature `cuda`: burn's CUDA runtime, which loads the driver at run time, so it
 //! builds without a CUDA toolkit).
 //!
@@ -12,7 +12,7 @@ use std::str::FromStr;
 pub enum BackendKind {
     /// burn's pure-Rust CPU backend (gemm matmuls on rayon).
     Flex,
-    /// burn-ndarray (deprecated upstream, kept selectable).
+    /// burn-ndarray (deprecated upstream); only with the `ndarray` cargo feature.
     Ndarray,
     /// wgpu (Vulkan/Metal/DX12); only with the `wgpu` cargo feature.
     Wgpu,
@@ -28,8 +28,7 @@ impl BackendKind {
     pub fn device(self) -> Result<Device, String> {
         match self {
             BackendKind::Flex => Ok(Device::flex()),
-            #[allow(deprecated)]
-            BackendKind::Ndarray => Ok(Device::ndarray()),
+            BackendKind::Ndarray => ndarray_device(),
             BackendKind::Wgpu => wgpu_device(),
             BackendKind::Cuda => cuda_device(),
         }
@@ -58,6 +57,17 @@ fn wgpu_device() -> Result<Device, String> {
 #[cfg(not(feature = "wgpu"))]
 fn wgpu_device() -> Result<Device, String> {
     Err("this build has no wgpu backend: rebuild with `--features wgpu`".into())
+}
+
+#[cfg(feature = "ndarray")]
+fn ndarray_device() -> Result<Device, String> {
+    #[allow(deprecated)]
+    Ok(Device::ndarray())
+}
+
+#[cfg(not(feature = "ndarray"))]
+fn ndarray_device() -> Result<Device, String> {
+    Err("this build has no ndarray backend (deprecated upstream; flex is the CPU default): rebuild with `--features ndarray`".into())
 }
 
 #[cfg(feature = "cuda")]

@@ -127,7 +127,8 @@ impl Batch {
             let emitter = x[0] > 0.8 && x[1] > 0.8;
             let scale = if emitter { 20.0 } else { 1.0 };
             b.gt.extend((0..3).map(|_| scale * (0.05 + r.next_f32())));
-            b.seg.push(if emitter { 7 } else { 2 * (x[2] > 0.5) as i32 });
+            b.seg
+                .push(if emitter { 7 } else { 2 * (x[2] > 0.5) as i32 });
         }
         b
     }

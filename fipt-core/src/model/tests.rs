@@ -1,9 +1,10 @@
-//! Model checks: finite-difference gradients of every differentiable piece, tensor/scalar BRDF
-//! agreement, and small fitting problems.
+//! Model checks: tensor/scalar BRDF agreement, the roughness lerp, the semantic loss against its
+//! formula, the tcnn init, and the device grid's step against the host path. The finite-
+//! difference gradient checks (f64) are in `tests/gradients.rs`.
 
 use super::brdf as tb;
 use super::loss;
-use super::render::{Shadings, composite, render, roughness_weights};
+use super::render::roughness_weights;
 use crate::brdf as sb;
 use crate::rng::Rng;
 use crate::shading::ShadingLayout;
@@ -20,78 +21,6 @@ fn t2(v: &[f32], shape: [usize; 2], d: &Device) -> Tensor<2> {
 
 fn to_vec(t: Tensor<2>) -> Vec<f32> {
     t.try_into_vec_as::<f32>().unwrap()
-}
-
-/// A CPU device computing in f64 (ndarray backend, so the f32 flex device used by the other
-/// tests keeps its default): finite differences are then accurate to ~1e-10.
-fn dev64() -> Device {
-    static DEV: std::sync::OnceLock<Device> = std::sync::OnceLock::new();
-    DEV.get_or_init(|| {
-        #[allow(deprecated)]
-        let mut d = Device::ndarray();
-        d.configure(burn::tensor::FloatDType::F64).unwrap();
-        d
-    })
-    .clone()
-}
-
-fn t64(v: &[f64], shape: [usize; 2], d: &Device) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(v.to_vec(), shape), d)
-}
-
-/// Checks d f / d inputs[k] against central differences in f64 for every input tensor, at every
-/// entry. `f` maps the input tensors to a scalar. Tolerance: |fd − an| ≤ atol + rtol·max(|fd|,|an|).
-fn grad_check(
-    name: &str,
-    inputs: &[(Vec<f32>, [usize; 2])],
-    f: &dyn Fn(&[Tensor<2>]) -> Tensor<1>,
-    h: f32,
-    rtol: f64,
-    atol: f64,
-) {
-    let _ = h;
-    let h = 1e-6f64;
-    let d = dev64();
-    let ad = d.clone().autodiff();
-    let inputs: Vec<(Vec<f64>, [usize; 2])> = inputs
-        .iter()
-        .map(|(v, s)| (v.iter().map(|&x| x as f64).collect(), *s))
-        .collect();
-    let leaves: Vec<Tensor<2>> = inputs
-        .iter()
-        .map(|(v, s)| t64(v, *s, &ad).require_grad())
-        .collect();
-    let out = f(&leaves);
-    let grads = out.backward();
-    for (k, (v, s)) in inputs.iter().enumerate() {
-        let an: Vec<f64> = leaves[k]
-            .grad(&grads)
-            .unwrap_or_else(|| Tensor::zeros(*s, &d))
-            .try_into_vec_as::<f64>()
-            .unwrap();
-        for i in 0..v.len() {
-            let eval = |delta: f64| {
-                let ts: Vec<Tensor<2>> = inputs
-                    .iter()
-                    .enumerate()
-                    .map(|(j, (w, sj))| {
-                        let mut w = w.clone();
-                        if j == k {
-                            w[i] += delta;
-                        }
-                        t64(&w, *sj, &d)
-                    })
-                    .collect();
-                f(&ts).into_scalar::<f64>()
-            };
-            let fd = (eval(h) - eval(-h)) / (2.0 * h);
-            let a = an[i];
-            assert!(
-                (fd - a).abs() <= atol + rtol * fd.abs().max(a.abs()),
-                "{name}: input {k} entry {i}: finite difference {fd:.9e} vs autodiff {a:.9e}"
-            );
-        }
-    }
 }
 
 fn uniform(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
@@ -153,67 +82,6 @@ fn brdf_tensor_matches_scalar() {
 }
 
 #[test]
-fn brdf_gradients() {
-    let n = 12;
-    let a = uniform(3 * n, 0.05, 0.95, 4);
-    let m = uniform(n, 0.05, 0.95, 5);
-    let s = uniform(n, 0.1, 0.95, 6);
-    let cv = uniform(n, 0.2, 0.9, 7);
-    let cl = uniform(n, 0.2, 0.9, 8);
-    let ch = uniform(n, 0.5, 0.99, 9);
-    let vh = uniform(n, 0.2, 0.9, 10);
-    grad_check(
-        "brdf f(a, σ, m)",
-        &[(a, [n, 3]), (s, [n, 1]), (m, [n, 1])],
-        &|x| {
-            let (kd, ks) = tb::reflectances(x[0].clone(), x[2].clone());
-            let d = x[0].device();
-            let c = |v: &Vec<f32>| t2(v, [n, 1], &d);
-            tb::eval_f(kd, ks, x[1].clone(), c(&cv), c(&cl), c(&ch), c(&vh)).sum()
-        },
-        1e-6,
-        1e-6,
-        1e-9,
-    );
-}
-
-#[test]
-fn render_gradients_including_roughness_lerp() {
-    let n = 10;
-    let kd = uniform(3 * n, 0.0, 1.0, 11);
-    let ks = uniform(3 * n, 0.0, 1.0, 12);
-    // Keep σ away from the level values (the lerp has kinks there).
-    let s: Vec<f32> = uniform(n, 0.0, 1.0, 13)
-        .iter()
-        .map(|u| 0.02 + 0.196 * ((u * 5.0).floor() + 0.2 + 0.6 * (u * 5.0).fract()))
-        .collect();
-    let sh = uniform(n * ShadingLayout::DIM, 0.0, 2.0, 14);
-    let alpha = uniform(n, 0.0, 1.0, 15);
-    let gt = uniform(3 * n, 0.0, 3.0, 16);
-    grad_check(
-        "factorised render + composite",
-        &[
-            (kd, [n, 3]),
-            (ks, [n, 3]),
-            (s, [n, 1]),
-            (sh, [n, ShadingLayout::DIM]),
-            (alpha, [n, 1]),
-        ],
-        &|x| {
-            let shd = Shadings::from_packed(x[3].clone());
-            let (pred, spec) = render(x[0].clone(), x[1].clone(), x[2].clone(), &shd);
-            let g = t2(&gt, [n, 3], &x[0].device());
-            (composite(pred, x[4].clone(), g) + spec)
-                .powi_scalar(2)
-                .sum()
-        },
-        1e-6,
-        1e-6,
-        1e-9,
-    );
-}
-
-#[test]
 fn roughness_weights_are_the_reference_lerp() {
     let d = dev();
     let s = [0.02f32, 0.1, 0.216, 0.5, 0.999, 1.0];
@@ -234,80 +102,6 @@ fn roughness_weights_are_the_reference_lerp() {
             assert!((w[i * 6 + j] - want).abs() < 1e-5, "σ={sig} level {j}");
         }
     }
-}
-
-#[test]
-fn loss_gradients() {
-    let n = 16;
-    // Keep values away from the tone-map knee.
-    let c = uniform(3 * n, 0.01, 2.0, 20);
-    let g = uniform(3 * n, 0.01, 2.0, 21);
-    grad_check(
-        "L_c",
-        &[(c, [n, 3]), (g, [n, 3])],
-        &|x| loss::color_loss(x[0].clone(), x[1].clone()),
-        1e-6,
-        1e-6,
-        1e-9,
-    );
-    let raw: Vec<f32> = uniform(n, 0.1, 1.0, 22)
-        .iter()
-        .enumerate()
-        .map(|(i, v)| if i % 2 == 0 { *v } else { -v })
-        .collect();
-    grad_check(
-        "L_e",
-        &[(raw, [n, 1])],
-        &|x| loss::emission_loss(x[0].clone(), 1.0),
-        1e-6,
-        1e-6,
-        1e-9,
-    );
-    let s = uniform(n, 0.1, 0.9, 23);
-    let m = uniform(n, 0.1, 0.9, 24);
-    grad_check(
-        "L_d",
-        &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
-        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 5e-4),
-        1e-6,
-        1e-6,
-        1e-12,
-    );
-    let spec = uniform(3 * n, 0.0, 1.0, 25);
-    let seg: Vec<i64> = (0..n as i64).map(|i| i % 3).collect();
-    grad_check(
-        "L_seg part",
-        &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
-        &|x| {
-            let d = x[0].device();
-            loss::part_loss(
-                x[0].clone(),
-                x[1].clone(),
-                t2(&spec, [n, 3], &d),
-                crate::model::gather::index_tensor(&seg, &d),
-                // Labels 3 and 4 carry no pixel: their means must not poison the gradient.
-                5,
-                1.0,
-            )
-        },
-        1e-6,
-        1e-6,
-        1e-9,
-    );
-    let a = uniform(3 * n, 0.4, 0.6, 26);
-    let p = uniform(3 * n, -0.2, 0.2, 27);
-    let labels: Vec<i32> = (0..n as i32).map(|i| i % 2).collect();
-    let pairs = loss::semantic_pairs(&labels, 4, &mut Rng::new(3, 3));
-    let w = loss::semantic_weights(&pairs, &a, &p, 0.05, 0.3);
-    let lab64: Vec<i64> = labels.iter().map(|&l| l as i64).collect();
-    grad_check(
-        "L_seg semantic",
-        &[(s, [n, 1]), (m, [n, 1])],
-        &|x| loss::semantic_loss(x[0].clone(), x[1].clone(), &pairs, &w, &lab64, 2, 1.0),
-        1e-6,
-        1e-6,
-        1e-9,
-    );
 }
 
 /// Eq. 20 against a direct evaluation of the formula, pair by pair, in f64: both the sampled
