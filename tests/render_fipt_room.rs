@@ -35,6 +35,7 @@ fn job(out: &str, relight: bool) -> RenderJob {
             ..Default::default()
         },
         quiet: true,
+        backend: fipt_core::model::BackendKind::Flex,
     }
 }
 

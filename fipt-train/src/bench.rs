@@ -569,6 +569,7 @@ pub fn render(scene: &Path, as_json: bool, spp: usize, views: usize, reps: usize
             ..Default::default()
         },
         quiet: true,
+        backend: fipt_core::model::BackendKind::Flex,
     };
     let mut rows = Vec::new();
     for threads in [1usize, 2] {

@@ -549,7 +549,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("emitters.threshold"), "{e}");
-        let e = Config::from_json(r#"{"backend": "cuda"}"#)
+        let e = Config::from_json(r#"{"backend": "opencl"}"#)
             .unwrap_err()
             .to_string();
         assert!(e.contains("backend"), "{e}");

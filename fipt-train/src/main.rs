@@ -148,6 +148,10 @@ enum Cmd {
         /// Render a recovered scene model: a model folder, or a name in the zoo.
         #[arg(long)]
         model: Option<String>,
+        /// Where a model's field is queried: flex (host), or wgpu / cuda (the table on the
+        /// device; needs the cargo feature).
+        #[arg(long, default_value = "flex")]
+        backend: BackendKind,
         /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
         #[arg(long)]
         zoo: Option<PathBuf>,
@@ -474,6 +478,7 @@ fn main() {
             out,
             truth: _,
             model,
+            backend,
             zoo,
             insert,
             no_cache,
@@ -522,6 +527,7 @@ fn main() {
                     ..Default::default()
                 },
                 quiet: json,
+                backend,
             };
             if pixel_positions.isqrt().pow(2) != pixel_positions {
                 eprintln!("error: --pixel-positions {pixel_positions}: must be a square (0, 1, 4, 9, 16, ...)");

@@ -76,6 +76,9 @@ pub struct RenderJob {
     pub selection: LightSelection,
     pub path: PathConfig,
     pub quiet: bool,
+    /// Where a model's field is queried: on a GPU backend its table is uploaded and encoded
+    /// there (`hashgrid_device`), on the CPU backends on the host.
+    pub backend: fipt_core::model::BackendKind,
 }
 
 /// One view's figures.
@@ -458,8 +461,12 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         Source::Truth => None,
         Source::Model { name_or_dir, zoo } => {
             let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
-            let device = burn::tensor::Device::flex();
-            Some(crate::scene_model::SceneModel::load(&dir, &device)?)
+            let device = job.backend.device().map_err(anyhow::Error::msg)?;
+            let mut m = crate::scene_model::SceneModel::load(&dir, &device)?;
+            if job.backend.is_gpu() {
+                m.model.upload_table();
+            }
+            Some(m)
         }
     };
     if !matches!(job.split.as_str(), "train" | "val") {

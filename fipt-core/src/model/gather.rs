@@ -3,15 +3,29 @@
 //! Measured on Mesa's lavapipe (wgpu on the CPU): `select_assign` with more indices silently
 //! keeps only the first 65,535, and `select` gathers wrong values at 524k indices. Every index
 //! op of the model goes through here so that wgpu stays correct (checked by
-//! `tests/wgpu_parity.rs` with over 600k indices). Indices given on the host are uploaded once;
+//! `tests/wgpu_parity.rs` with over 600k indices). GPUs whose dispatch limits are larger can
+//! take longer chunks (fewer launches): `FIPT_INDEX_CHUNK` sets the chunk length (at least
+//! 1024); only lavapipe's limit has been measured. Indices given on the host are uploaded once;
 //! indices already on the device (`*_dev`) are cut with `narrow` on the device.
 //!
 //! Owns: chunking. Must not touch: what is gathered.
 
 use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
 
-/// Largest index count per `select`/`select_assign` call.
+/// Largest index count per `select`/`select_assign` call by default (lavapipe's limit).
 pub const INDEX_CHUNK: usize = 65_535;
+
+/// The chunk length: `FIPT_INDEX_CHUNK` if set to a number ≥ 1024, else `INDEX_CHUNK`.
+pub fn index_chunk() -> usize {
+    static CHUNK: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *CHUNK.get_or_init(|| {
+        std::env::var("FIPT_INDEX_CHUNK")
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok())
+            .filter(|&c| c >= 1024)
+            .unwrap_or(INDEX_CHUNK)
+    })
+}
 
 /// Host indices as a device tensor (one upload).
 pub fn index_tensor(idx: &[i64], device: &Device) -> Tensor<1, Int> {
@@ -21,15 +35,14 @@ pub fn index_tensor(idx: &[i64], device: &Device) -> Tensor<1, Int> {
 
 /// The chunks of an index tensor of length `m`: (start, length).
 fn chunks(m: usize) -> impl Iterator<Item = (usize, usize)> {
-    (0..m)
-        .step_by(INDEX_CHUNK)
-        .map(move |s| (s, INDEX_CHUNK.min(m - s)))
+    let c = index_chunk();
+    (0..m).step_by(c).map(move |s| (s, c.min(m - s)))
 }
 
 /// Rows `idx` of `table` [rows, F] → [m, F], with the indices on the device.
 pub fn select_rows_dev(table: Tensor<2>, idx: Tensor<1, Int>) -> Tensor<2> {
     let m = idx.dims()[0];
-    if m <= INDEX_CHUNK {
+    if m <= index_chunk() {
         return table.select(0, idx);
     }
     let parts: Vec<Tensor<2>> = chunks(m)
@@ -47,7 +60,7 @@ pub fn select_rows(table: Tensor<2>, idx: &[i64]) -> Tensor<2> {
 /// Elements `idx` of an int vector, with the indices on the device.
 pub fn select_int_dev(v: Tensor<1, Int>, idx: Tensor<1, Int>) -> Tensor<1, Int> {
     let m = idx.dims()[0];
-    if m <= INDEX_CHUNK {
+    if m <= index_chunk() {
         return v.select(0, idx);
     }
     let parts: Vec<Tensor<1, Int>> = chunks(m)
