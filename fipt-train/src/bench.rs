@@ -371,8 +371,9 @@ pub fn step(
     steps: usize,
     peer_sizes: bool,
     place: crate::config::GridPlace,
+    modes: &[fipt_core::model::step::SegMode],
 ) -> Result<()> {
-    use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig, step::SegMode};
+    use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig};
     let grid = |levels, log2_table, scale| {
         TrainConfig::new().with_material(
             MaterialFieldConfig::new().with_grid(
@@ -396,7 +397,7 @@ pub fn step(
     let mut rows = Vec::new();
     for (name, cfg) in configs {
         for &b in backends {
-            for mode in [SegMode::Part, SegMode::Semantic] {
+            for &mode in modes {
                 let cfg = cfg.clone().with_device_grid(place.on_device(b));
                 let (times, params, phases, bytes) =
                     time_steps(cfg, b, &store, batch, 2, steps, mode)?;

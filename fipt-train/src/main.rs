@@ -335,6 +335,9 @@ enum BenchCmd {
         /// Where the hash grid lives: auto (on the device for wgpu), host or device.
         #[arg(long, default_value = "auto")]
         grid: fipt_train::config::GridPlace,
+        /// Time only the part loss (the default config's) instead of both segmentation losses.
+        #[arg(long)]
+        part_only: bool,
     },
 }
 
@@ -582,13 +585,22 @@ fn main() {
                 steps,
                 peer_sizes,
                 grid,
+                part_only,
             } => {
                 let b = if backend.is_empty() {
                     vec![BackendKind::Flex]
                 } else {
                     backend
                 };
-                bench::step(&b, json, batch, steps, peer_sizes, grid)
+                {
+                    use fipt_core::model::step::SegMode;
+                    let modes: &[SegMode] = if part_only {
+                        &[SegMode::Part]
+                    } else {
+                        &[SegMode::Part, SegMode::Semantic]
+                    };
+                    bench::step(&b, json, batch, steps, peer_sizes, grid, modes)
+                }
             }
         },
     };
