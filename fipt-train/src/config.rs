@@ -100,7 +100,7 @@ pub enum SegChoice {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum GridPlace {
-    /// On the device for the GPU backends (wgpu, cuda), the fused host op on the CPU backends.
+    /// On the device for the GPU backend (wgpu), the fused host op on the CPU backends.
     Auto,
     /// The fused host op with its sparse Adam (the CPU path).
     Host,

@@ -82,7 +82,7 @@ enum Cmd {
     Run {
         #[command(flatten)]
         job: JobArgs,
-        /// Backend: flex, ndarray, wgpu or cuda (overrides the config; the GPU ones need their cargo
+        /// Backend: flex, wgpu or ndarray (overrides the config; wgpu and ndarray need their cargo
         /// feature).
         #[arg(long)]
         backend: Option<BackendKind>,
@@ -148,8 +148,8 @@ enum Cmd {
         /// Render a recovered scene model: a model folder, or a name in the zoo.
         #[arg(long)]
         model: Option<String>,
-        /// Where a model's field is queried: flex (host), or wgpu / cuda (the table on the
-        /// device; needs the cargo feature).
+        /// Where a model's field is queried: flex (host), or wgpu (the table on the device;
+        /// needs the cargo feature).
         #[arg(long, default_value = "flex")]
         backend: BackendKind,
         /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
@@ -319,7 +319,7 @@ enum BenchCmd {
     /// Median time of one training step of the fit (reference and CPU-sized models, part and
     /// semantic losses, shuffled batches of a realistic pixel store).
     Step {
-        /// Backend(s) to time: flex, ndarray, wgpu, cuda (default: flex).
+        /// Backend(s) to time: flex, wgpu, ndarray (default: flex).
         #[arg(long)]
         backend: Vec<BackendKind>,
         #[arg(long)]

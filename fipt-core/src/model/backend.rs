@@ -1,6 +1,7 @@
-//! Run-time backend choice: the CPU backends (flex; ndarray with the cargo feature `ndarray`), wgpu (cargo feature `wgpu`) and
-//! CUDA (cargo feature `cuda`: burn's CUDA runtime, which loads the driver at run time, so it
-//! builds without a CUDA toolkit).
+//! Run-time backend choice: the CPU backends (flex; ndarray with the cargo feature `ndarray`)
+//! and wgpu (cargo feature `wgpu`). burn's CUDA runtime is not offered: cubecl-cuda 0.11 builds
+//! cubecl-llvm, whose build script downloads an LLVM bundle from outside any package registry,
+//! so it does not build on a machine that reaches only the registries.
 //!
 //! Owns: the mapping from a backend name to a burn `Device`. Must not touch: model code.
 
@@ -16,8 +17,6 @@ pub enum BackendKind {
     Ndarray,
     /// wgpu (Vulkan/Metal/DX12); only with the `wgpu` cargo feature.
     Wgpu,
-    /// CUDA on the first NVIDIA GPU; only with the `cuda` cargo feature.
-    Cuda,
 }
 
 impl BackendKind {
@@ -30,13 +29,12 @@ impl BackendKind {
             BackendKind::Flex => Ok(Device::flex()),
             BackendKind::Ndarray => ndarray_device(),
             BackendKind::Wgpu => wgpu_device(),
-            BackendKind::Cuda => cuda_device(),
         }
     }
 
     /// Whether this is a GPU backend (where the hash grid goes on the device by default).
     pub fn is_gpu(self) -> bool {
-        matches!(self, BackendKind::Wgpu | BackendKind::Cuda)
+        matches!(self, BackendKind::Wgpu)
     }
 
     pub fn name(self) -> &'static str {
@@ -44,7 +42,6 @@ impl BackendKind {
             BackendKind::Flex => "flex",
             BackendKind::Ndarray => "ndarray",
             BackendKind::Wgpu => "wgpu",
-            BackendKind::Cuda => "cuda",
         }
     }
 }
@@ -70,16 +67,6 @@ fn ndarray_device() -> Result<Device, String> {
     Err("this build has no ndarray backend (deprecated upstream; flex is the CPU default): rebuild with `--features ndarray`".into())
 }
 
-#[cfg(feature = "cuda")]
-fn cuda_device() -> Result<Device, String> {
-    Ok(Device::cuda(0))
-}
-
-#[cfg(not(feature = "cuda"))]
-fn cuda_device() -> Result<Device, String> {
-    Err("this build has no CUDA backend: rebuild with `--features cuda`".into())
-}
-
 impl FromStr for BackendKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -87,9 +74,8 @@ impl FromStr for BackendKind {
             "flex" => Ok(BackendKind::Flex),
             "ndarray" => Ok(BackendKind::Ndarray),
             "wgpu" => Ok(BackendKind::Wgpu),
-            "cuda" => Ok(BackendKind::Cuda),
             _ => Err(format!(
-                "unknown backend '{s}' (expected flex, ndarray, wgpu or cuda)"
+                "unknown backend '{s}' (expected flex, wgpu or ndarray)"
             )),
         }
     }
