@@ -209,7 +209,8 @@ fn loss_gradients() {
                 x[1].clone(),
                 t2(&spec, [n, 3], &d),
                 fipt_core::model::gather::index_tensor(&seg, &d),
-                // Labels 3 and 4 carry no pixel: their means must not poison the gradient.
+                // Labels 3 and 4 carry no pixel (the device path runs the part loss over all of
+                // the store's labels): the gradient stays exact.
                 5,
                 1.0,
             )

@@ -249,6 +249,7 @@ fn device_resident_step_matches_cpu_path() {
     }
     // One step: the batch by index from the device store, the loss read afterwards.
     let g = cpu.gradients(&b, SegMode::Part);
+    let nets0 = cpu.net_params();
     let store = DeviceStore::upload(&b, &gpu.device);
     let idx: Vec<u32> = (0..b.len() as u32).collect();
     let pending = gpu.step_on(
@@ -280,6 +281,24 @@ fn device_resident_step_matches_cpu_path() {
         }
     }
     assert!(checked > 50_000, "{checked} table entries checked");
+    // The networks after the step: −lr·g/(|g| + ε) on both where |g| is above rounding.
+    for (i, ((pg, pc), p0)) in gpu
+        .net_params()
+        .iter()
+        .zip(cpu.net_params())
+        .zip(&nets0)
+        .enumerate()
+    {
+        let gmax = g.params[i].iter().fold(0f32, |m, v| m.max(v.abs()));
+        for j in 0..pg.len() {
+            let gj = g.params[i][j];
+            if gj.abs() > 1e-3 * gmax {
+                let want = p0[j] - lr * gj / (gj.abs() + eps);
+                assert!((pc[j] - want).abs() <= TOL * lr, "flex parameter {i}[{j}]");
+                assert!((pg[j] - want).abs() <= TOL * lr, "wgpu parameter {i}[{j}]");
+            }
+        }
+    }
     // Inference with the table on the device.
     gpu.sync_host_table();
     let xs: Vec<[f32; 3]> = b.x_unit.iter().take(5000).copied().collect();

@@ -210,8 +210,8 @@ impl TrainSection {
         }
     }
 
-    /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`).
-    /// The model's config with `levels` grid levels, for a fit on `backend`.
+    /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`),
+    /// for a fit on `backend` (which decides where `grid_place: auto` puts the grid).
     pub fn model_config(&self, levels: usize, backend: BackendKind) -> TrainConfig {
         TrainConfig::new()
             .with_device_grid(self.grid_place.on_device(backend))

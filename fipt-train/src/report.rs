@@ -203,6 +203,10 @@ pub struct GridReport {
     pub levels: usize,
     /// Training steps taken.
     pub steps: u64,
+    /// Where the table lived during the fit: `host` (fused op, sparse Adam) or `device`
+    /// (`train.grid_place`).
+    #[serde(default)]
+    pub place: String,
 }
 
 /// `metrics.json`: the scores (flattened to the top level), the per-part table, the emitters,

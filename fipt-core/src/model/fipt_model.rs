@@ -118,7 +118,9 @@ impl FiptModel {
     }
 
     /// Uploads the table onto the networks' device, so that queries encode there
-    /// (`hashgrid_device`) instead of on the host.
+    /// (`hashgrid_device`) instead of on the host. For inference, or for a `Trainer` on the
+    /// device path (which trains this copy); a host-path trainer trains `grid.table` and drops
+    /// a device copy when it is built.
     pub fn upload_table(&mut self) {
         self.device_grid = Some(GridTables::from_host(&self.grid, &self.device));
     }

@@ -6,9 +6,12 @@
 //! parameters in the reference; the host path's `TableAdam` is sparse).
 //!
 //! The level layout (`Level`: offset, size, scale, dense or hashed) and the hash primes are
-//! `hashgrid`'s, so both implementations index the same entries; `cell` on the host and
-//! `level_corners` here are checked against each other (tests in this file and
-//! `tests/wgpu_parity.rs`).
+//! `hashgrid`'s; the indexing itself is written twice (the host loop `cell`, the tensor ops
+//! `level_corners`) and checked against each other: bit for bit on flex (tests in this file),
+//! and through the encoding, the gradients and a training step on wgpu (`tests/wgpu_parity.rs`).
+//! A GPU compiler may fuse `x·scale + 0.5` into one rounding (FMA), which can move a point
+//! lying within rounding of a cell face into the neighbouring cell; the encoding is continuous
+//! there, so the values agree to rounding.
 //!
 //! Owns: the device formulation of the grid. Must not touch: the layout or the hash (owned by
 //! `hashgrid`).
@@ -64,6 +67,7 @@ impl GridTables {
 /// Corner offsets of a cell along x, y, z, in `hashgrid::cell`'s corner order (bit k of the
 /// corner number is the offset along axis k).
 fn corner_offsets(device: &Device) -> [Tensor<2, Int>; 3] {
+    crate::model::transfer::upload(3 * 8 * 8);
     std::array::from_fn(|k| {
         let v: Vec<i64> = (0..8).map(|c| ((c >> k) & 1) as i64).collect();
         Tensor::from_data(TensorData::new(v, [1, 8]), device)

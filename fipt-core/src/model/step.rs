@@ -354,16 +354,19 @@ pub struct Trainer {
     last_xs: Vec<[f32; 3]>,
 }
 
-/// Seconds spent per phase of the training step, summed over `steps` steps.
+/// Seconds spent per phase of the training step, summed over `steps` steps. On a device that runs
+/// ahead of the host (wgpu) a phase measures the time to queue its work, not to run it.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct StepProfile {
-    /// Hash-grid encoding on the host.
+    /// The batch's upload (or gather from the device store) and the hash-grid encoding (on the
+    /// host, or queued on the device).
     pub encode: f64,
-    /// Tensor forward: MLPs, renderer, losses (incl. reading the loss values).
+    /// Tensor forward: MLPs, renderer, losses.
     pub forward: f64,
-    /// Autodiff backward and reading the encoding gradient.
+    /// Autodiff backward and, on the host path, reading the encoding gradient.
     pub backward: f64,
-    /// Hash-grid backward and sparse Adam.
+    /// The table's update: the host path's backward scatter and sparse Adam, or the device
+    /// path's dense Adam.
     pub grid_update: f64,
     /// burn Adam on the MLPs.
     pub net_update: f64,
@@ -437,6 +440,8 @@ impl Trainer {
             }
             GridOpt::Device { optim: adam() }
         } else {
+            // The host path trains `grid.table`: bring it up to date first.
+            model.sync_host_table();
             model.device_grid = None;
             GridOpt::Host {
                 grad: TableGrad::new(&model.grid),
@@ -589,7 +594,11 @@ impl Trainer {
         let t0 = Instant::now();
         let px = Pixels::of(input, &dev);
         let n = px.n;
-        let (enc, enc_leaf, xs) = match &self.model.device_grid {
+        let device_tables = match self.grid_opt {
+            GridOpt::Device { .. } => self.model.device_grid.as_ref(),
+            GridOpt::Host { .. } => None,
+        };
+        let (enc, enc_leaf, xs) = match device_tables {
             Some(tables) => (
                 hashgrid_device::encode(&self.model.grid.levels, tables, px.x_unit.clone()),
                 false,
@@ -647,7 +656,9 @@ impl Trainer {
         let m = &mut self.model;
         match (&mut self.grid_opt, g_enc) {
             (GridOpt::Host { grad, adam }, Some(g)) => {
-                m.grid.backward_adam(&xs, &g, grad, adam, lr as f32)
+                m.grid.backward_adam(&xs, &g, grad, adam, lr as f32);
+                // An inference copy on the device (`upload_table`) is stale now.
+                m.device_grid = None;
             }
             (GridOpt::Device { optim }, None) => {
                 let tables = m.device_grid.take().expect("device table");
@@ -667,6 +678,7 @@ impl Trainer {
         p.steps += 1;
         self.steps += 1;
         if self.device_resident() {
+            // Read later, with others (`StepLoss::read_all`).
             StepLoss::Pending(Box::new(f.parts))
         } else {
             transfer::download(5 * 4);
@@ -766,7 +778,8 @@ impl Trainer {
                     self.cfg.sem_sigma_a,
                     self.cfg.sem_sigma_p,
                 );
-                transfer::upload(w.len() * 4 + pairs.partner.len() * 8);
+                // The partner indices are counted where they are uploaded (`index_tensor`).
+                transfer::upload(w.len() * 4);
                 loss::semantic_loss(
                     mat.sigma.clone(),
                     mat.metallic.clone(),

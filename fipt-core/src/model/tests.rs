@@ -302,6 +302,10 @@ fn device_grid_step_matches_host_step() {
             "{mode:?} loss"
         );
         assert!(gh.parts.seg > 0.0);
+        assert!(
+            rel_err(&[gd.parts.seg], &[gh.parts.seg]) <= 1e-5,
+            "{mode:?} seg loss"
+        );
         assert!(gh.table.iter().filter(|g| **g != 0.0).count() > 4000);
         assert!(
             rel_err(&gd.table, &gh.table) <= 1e-4,
@@ -327,10 +331,16 @@ fn device_grid_step_matches_host_step() {
     );
     assert!(matches!(by_index, StepLoss::Pending(_)));
     let read = StepLoss::read_all(vec![by_index])[0];
-    assert!((read.total - g.parts.total).abs() <= 1e-5 * g.parts.total);
+    let parts = |p: super::LossParts| vec![p.total, p.color, p.emission, p.diffuse, p.seg];
+    // Every part: a wrong segment id would show in `seg` (a small share of the total).
+    assert!(
+        rel_err(&parts(read), &parts(g.parts)) <= 1e-5,
+        "step by index"
+    );
+    assert!(read.seg > 0.0);
     assert!(rel_err(&whole, &g.table) <= 1e-4);
     let lh = host.step(&batch, SegMode::Part);
-    assert!((lh.total - read.total).abs() <= 1e-5 * lh.total);
+    assert!(rel_err(&parts(lh), &parts(read)) <= 1e-5);
     // One Adam step: −lr·g/(|g| + ε) on both paths where |g| is above rounding.
     let (lr, eps) = (host.cfg.lr as f32, host.cfg.eps);
     let (th, td) = (host.table(), devt.table());

@@ -1,5 +1,6 @@
 //! The fit of the material field and the emission mask (paper §4.4–4.5, Eq. 12 and 15–20):
-//! shuffled batches from the pixel store through `Trainer::step`, on a schedule.
+//! shuffled batches from the pixel store through `Trainer::step` (host batches), or by index from
+//! a `DeviceStore` through `Trainer::step_on` when the grid lives on the device, on a schedule.
 //!
 //! Owns: the schedule (steps, learning rate, which pixels a batch holds), the loss log,
 //! progress. Must not touch: the model maths, the pixel store.
@@ -605,8 +606,12 @@ pub(crate) mod tests {
     fn interrupted_fit(device_grid: bool) {
         use crate::pipeline::checkpoint::Checkpoints;
         let build = toy_store;
-        let st = build(600);
-        let (cfg, schedule) = toy_fit();
+        // The device fit reads its losses every `LOSS_READ_EVERY` steps and at epoch ends: with
+        // 32 steps per epoch and 60 steps both kinds of read happen (25, 32, 57, 60).
+        let (n, steps) = if device_grid { (2000, 60) } else { (600, 25) };
+        let st = build(n);
+        let (cfg, mut schedule) = toy_fit();
+        schedule.min_steps = steps;
         let cfg = cfg.with_device_grid(device_grid);
         let device = burn::tensor::Device::flex();
         let scene_box = SceneBox { min: 0.0, max: 1.0 };
@@ -619,8 +624,8 @@ pub(crate) mod tests {
         let fresh = || Trainer::new(cfg.clone(), scene_box, &device, 3);
         let (whole, pw) = fit_resumable(fresh(), &st, &run, None, &mut |_, _| Ok(())).unwrap();
         assert_eq!(whole.device_resident(), device_grid);
-        assert_eq!(pw.log.step_total.len(), 25);
-        assert_eq!(pw.log.epochs.len(), 3);
+        assert_eq!(pw.log.step_total.len(), steps);
+        assert_eq!(pw.log.epochs.len(), steps.div_ceil(n.div_ceil(64)));
         assert!(pw.log.step_total.iter().all(|l| l.is_finite() && *l > 0.0));
 
         let dir = std::env::temp_dir().join(format!(
@@ -665,7 +670,7 @@ pub(crate) mod tests {
         assert_eq!(whole.model.net_params(), resumed.model.net_params());
 
         // Another store (one pixel fewer) does not take this sampler state.
-        let small = build(599);
+        let small = build(n - 1);
         let e = ck
             .restore(0, &of(&small))
             .err()

@@ -576,6 +576,12 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             pixel_footprint: footprint,
             levels: grid_levels,
             steps: tr.steps,
+            place: if tr.device_resident() {
+                "device"
+            } else {
+                "host"
+            }
+            .into(),
         },
         parts,
         rounds,
