@@ -331,8 +331,8 @@ fn time_steps(
     Ok((times, params, phases, bytes))
 }
 
-/// One step of `time_steps` on the entries `idx`: from the device store (losses left pending,
-/// read every 25 steps) or from a host batch.
+/// One step of `time_steps` on the entries `idx`, as a fit takes it (`fit::step_entries`),
+/// its loss read with the pending ones every `fit::LOSS_READ_EVERY` steps.
 fn bench_step(
     tr: &mut fipt_core::model::Trainer,
     ds: Option<&fipt_core::model::step::DeviceStore>,
@@ -341,23 +341,10 @@ fn bench_step(
     mode: fipt_core::model::step::SegMode,
     pending: &mut Vec<fipt_core::model::step::StepLoss>,
 ) {
-    use fipt_core::model::step::{SegMode, StepInput, StepLoss};
-    match ds {
-        Some(ds) => {
-            let host = (mode == SegMode::Semantic).then(|| store.batch(idx));
-            let input = StepInput::Device {
-                store: ds,
-                idx,
-                host: host.as_ref(),
-            };
-            pending.push(tr.step_on(input, mode));
-            if pending.len() == 25 {
-                StepLoss::read_all(std::mem::take(pending));
-            }
-        }
-        None => {
-            tr.step(&store.batch(idx), mode);
-        }
+    use crate::pipeline::fit::{LOSS_READ_EVERY, step_entries};
+    pending.push(step_entries(tr, ds, store, idx, mode));
+    if pending.len() == LOSS_READ_EVERY {
+        fipt_core::model::step::StepLoss::read_all(std::mem::take(pending));
     }
 }
 

@@ -29,7 +29,8 @@ use burn::config::Config;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use std::collections::{BTreeMap, HashMap};
+use std::borrow::Cow;
+use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
@@ -209,9 +210,10 @@ impl StepLoss {
     }
 }
 
-/// The training pixels resident on the device (the device path's pixel store): unit-cube and
-/// world positions, packed shadings, photo values and segment ids (made compact, 0..n_seg, in
-/// the order of the ids' values), uploaded once; a step then uploads only its batch's indices.
+/// Training pixels as device tensors: unit-cube and world positions, packed shadings, photo
+/// values and segment ids (made compact, 0..n_seg, by `compact_ids`). As the device path's
+/// pixel store it is uploaded once, and a step gathers its batch from it by index
+/// (`rows`), uploading only the indices; a host batch is uploaded into one for its step.
 pub struct DeviceStore {
     pub x_unit: Tensor<2>,
     pub x_world: Tensor<2>,
@@ -219,32 +221,42 @@ pub struct DeviceStore {
     pub gt: Tensor<2>,
     pub seg: Tensor<1, Int>,
     pub n_seg: usize,
-    pub len: usize,
 }
 
 impl DeviceStore {
     /// Uploads every pixel of `pixels` onto `device`.
     pub fn upload(pixels: &Batch, device: &Device) -> Self {
         let n = pixels.len();
-        let ids: BTreeMap<i32, i64> = pixels
-            .seg
-            .iter()
-            .map(|&s| (s, 0))
-            .collect::<BTreeMap<_, _>>()
-            .into_keys()
-            .enumerate()
-            .map(|(k, s)| (s, k as i64))
-            .collect();
-        let seg: Vec<i64> = pixels.seg.iter().map(|s| ids[s]).collect();
+        let (seg, n_seg) = compact_ids(&pixels.seg);
         Self {
             x_unit: upload2(flat3(&pixels.x_unit), [n, 3], device),
             x_world: upload2(flat3(&pixels.x_world), [n, 3], device),
             shadings: upload2(pixels.shadings.clone(), [n, ShadingLayout::DIM], device),
             gt: upload2(pixels.gt.clone(), [n, 3], device),
             seg: index_tensor(&seg, device),
-            n_seg: ids.len(),
-            len: n,
+            n_seg,
         }
+    }
+
+    /// Entries `idx`, gathered on the device (only the indices are uploaded); the segment ids
+    /// keep the store's numbering.
+    fn rows(&self, idx: &[u32], device: &Device) -> Self {
+        let i: Vec<i64> = idx.iter().map(|&i| i as i64).collect();
+        let i = index_tensor(&i, device);
+        let rows = |t: &Tensor<2>| select_rows_dev(t.clone(), i.clone());
+        Self {
+            x_unit: rows(&self.x_unit),
+            x_world: rows(&self.x_world),
+            shadings: rows(&self.shadings),
+            gt: rows(&self.gt),
+            seg: select_int_dev(self.seg.clone(), i.clone()),
+            n_seg: self.n_seg,
+        }
+    }
+
+    /// Pixels held.
+    fn len(&self) -> usize {
+        self.x_unit.dims()[0]
     }
 }
 
@@ -276,52 +288,25 @@ fn compact_ids(seg: &[i32]) -> (Vec<i64>, usize) {
     (compact, map.len())
 }
 
-/// A step's pixels as device tensors (and, where the semantic loss needs them, host values).
+/// A step's pixels as device tensors, and the host batch where the semantic loss needs it.
 struct Pixels<'a> {
-    n: usize,
-    x_unit: Tensor<2>,
-    x_world: Tensor<2>,
-    shadings: Tensor<2>,
-    gt: Tensor<2>,
-    seg: Tensor<1, Int>,
-    n_seg: usize,
-    /// Unit-cube positions of the batch, for the host grid and the semantic weights.
+    t: DeviceStore,
+    /// The batch on the host (always with a host batch; with a device store, only where the
+    /// semantic loss needs it).
     host: Option<&'a Batch>,
 }
 
 impl<'a> Pixels<'a> {
     fn of(input: StepInput<'a>, dev: &Device) -> Self {
         match input {
-            StepInput::Host(b) => {
-                let n = b.len();
-                let (compact, n_seg) = compact_ids(&b.seg);
-                Pixels {
-                    n,
-                    x_unit: upload2(flat3(&b.x_unit), [n, 3], dev),
-                    x_world: upload2(flat3(&b.x_world), [n, 3], dev),
-                    shadings: upload2(b.shadings.clone(), [n, ShadingLayout::DIM], dev),
-                    gt: upload2(b.gt.clone(), [n, 3], dev),
-                    seg: index_tensor(&compact, dev),
-                    n_seg,
-                    host: Some(b),
-                }
-            }
-            StepInput::Device { store, idx, host } => {
-                let n = idx.len();
-                let i: Vec<i64> = idx.iter().map(|&i| i as i64).collect();
-                let i = index_tensor(&i, dev);
-                let rows = |t: &Tensor<2>| select_rows_dev(t.clone(), i.clone());
-                Pixels {
-                    n,
-                    x_unit: rows(&store.x_unit),
-                    x_world: rows(&store.x_world),
-                    shadings: rows(&store.shadings),
-                    gt: rows(&store.gt),
-                    seg: select_int_dev(store.seg.clone(), i.clone()),
-                    n_seg: store.n_seg,
-                    host,
-                }
-            }
+            StepInput::Host(b) => Pixels {
+                t: DeviceStore::upload(b, dev),
+                host: Some(b),
+            },
+            StepInput::Device { store, idx, host } => Pixels {
+                t: store.rows(idx, dev),
+                host,
+            },
         }
     }
 }
@@ -350,8 +335,6 @@ pub struct Trainer {
     pub steps: u64,
     /// Accumulated time per phase of `step`.
     pub profile: StepProfile,
-    /// The host grid's batch positions, from the forward pass to the backward.
-    last_xs: Vec<[f32; 3]>,
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps. On a device that runs
@@ -390,10 +373,11 @@ fn download(t: Tensor<2>) -> Vec<f32> {
     v
 }
 
-/// What the forward pass leaves for the backward: the host grid's encoding leaf (none on the
-/// device path), the total loss and the loss parts (detached, on the device).
-struct Forward {
-    enc_leaf: Option<Tensor<2>>,
+/// What the forward pass leaves for the backward: the host grid's encoding leaf and the batch's
+/// positions its backward scatters at (none on the device path), the total loss and the loss
+/// parts (detached, on the device).
+struct Forward<'a> {
+    enc_leaf: Option<(Tensor<2>, Cow<'a, [[f32; 3]]>)>,
     total: Tensor<1>,
     parts: Tensor<1>,
 }
@@ -410,18 +394,20 @@ impl Trainer {
             scene_box,
         };
         let model = FiptModel::init(spec, &ad, seed);
-        Self::assemble(cfg, ad, model, seed, None)
+        Self::assemble(cfg, ad, model, seed, None, None)
     }
 
     /// A trainer around `model` (on the autodiff `device`) with fresh optimisers, or burn's
-    /// Adam state of the networks from `record` (the table's state is the caller's to restore).
-    /// On the device path the model's host table is uploaded unless it is there already.
+    /// Adam state of the networks from `record` and, on the device path, of the table from
+    /// `grid_record` (the host path's table moments are the caller's to restore). On the device
+    /// path the model's host table is uploaded unless it is there already.
     fn assemble(
         cfg: TrainConfig,
         device: Device,
         mut model: FiptModel,
         seed: u64,
         record: Option<burn::optim::OptimizerRecord>,
+        grid_record: Option<burn::optim::OptimizerRecord>,
     ) -> Self {
         let adam = || {
             AdamConfig::new()
@@ -430,15 +416,18 @@ impl Trainer {
                 .with_epsilon(cfg.eps)
                 .init()
         };
-        let mut optim = adam();
-        if let Some(r) = record {
-            optim = optim.load_record(r);
-        }
+        let with = |r: Option<burn::optim::OptimizerRecord>| match r {
+            Some(r) => adam().load_record(r),
+            None => adam(),
+        };
+        let optim = with(record);
         let grid_opt = if cfg.device_grid {
             if model.device_grid.is_none() {
                 model.device_grid = Some(GridTables::from_host(&model.grid, &device));
             }
-            GridOpt::Device { optim: adam() }
+            GridOpt::Device {
+                optim: with(grid_record),
+            }
         } else {
             // The host path trains `grid.table`: bring it up to date first.
             model.sync_host_table();
@@ -457,7 +446,6 @@ impl Trainer {
             seed,
             steps: 0,
             profile: StepProfile::default(),
-            last_xs: Vec::new(),
         }
     }
 
@@ -549,7 +537,7 @@ impl Trainer {
             .ok()
             .and_then(|v| v.get("steps")?.as_u64())
             .ok_or_else(|| format!("{}: no step count", state_path.display()))?;
-        if cfg.device_grid {
+        let grid_record = if cfg.device_grid {
             let path = dir.join(GRID_TABLES_FILE);
             if !path.is_file() {
                 return Err(format!("{}: missing", path.display()));
@@ -564,24 +552,16 @@ impl Trainer {
                 ));
             }
             model.device_grid = Some(tables);
-        }
-        let grid_record = if cfg.device_grid {
             Some(load_record(GRID_OPTIM_FILE)?)
         } else {
             None
         };
-        let mut t = Self::assemble(cfg, ad, model, seed, Some(record));
-        match &mut t.grid_opt {
-            GridOpt::Host { adam, .. } => {
-                let adam_path = dir.join(TABLE_ADAM_FILE);
-                let bytes = crate::io::read_bytes(&adam_path).map_err(|e| e.to_string())?;
-                adam.load_bytes(&bytes)
-                    .map_err(|e| format!("{}: {e}", adam_path.display()))?;
-            }
-            GridOpt::Device { optim } => {
-                let r = grid_record.expect("loaded above");
-                *optim = std::mem::replace(optim, AdamConfig::new().init()).load_record(r);
-            }
+        let mut t = Self::assemble(cfg, ad, model, seed, Some(record), grid_record);
+        if let GridOpt::Host { adam, .. } = &mut t.grid_opt {
+            let adam_path = dir.join(TABLE_ADAM_FILE);
+            let bytes = crate::io::read_bytes(&adam_path).map_err(|e| e.to_string())?;
+            adam.load_bytes(&bytes)
+                .map_err(|e| format!("{}: {e}", adam_path.display()))?;
         }
         t.steps = steps;
         Ok(t)
@@ -589,36 +569,35 @@ impl Trainer {
 
     /// The forward pass on `input`: the encoding leaf of the host grid, the total loss and the
     /// loss parts.
-    fn forward(&mut self, input: StepInput, mode: SegMode) -> Forward {
+    fn forward<'a>(&mut self, input: StepInput<'a>, mode: SegMode) -> Forward<'a> {
         let dev = self.device.clone();
         let t0 = Instant::now();
         let px = Pixels::of(input, &dev);
-        let n = px.n;
+        let n = px.t.len();
         let device_tables = match self.grid_opt {
             GridOpt::Device { .. } => self.model.device_grid.as_ref(),
             GridOpt::Host { .. } => None,
         };
-        let (enc, enc_leaf, xs) = match device_tables {
+        let (enc, enc_leaf) = match device_tables {
             Some(tables) => (
-                hashgrid_device::encode(&self.model.grid.levels, tables, px.x_unit.clone()),
-                false,
-                Vec::new(),
+                hashgrid_device::encode(&self.model.grid.levels, tables, px.t.x_unit.clone()),
+                None,
             ),
             None => {
                 let xs = host_positions(&px);
                 let d = self.model.grid.output_dim();
                 let enc = upload2(self.model.grid.encode(&xs), [n, d], &dev).require_grad();
-                (enc, true, xs)
+                (enc.clone(), Some((enc, xs)))
             }
         };
         let t1 = Instant::now();
         let mat = decode_material(self.model.nets.material.forward(enc.clone()));
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
-        let sh = Shadings::from_packed(px.shadings.clone());
+        let sh = Shadings::from_packed(px.t.shadings.clone());
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
-        let raw = self.model.nets.emission.raw(px.x_world.clone());
+        let raw = self.model.nets.emission.raw(px.t.x_world.clone());
         let alpha = alpha_from_raw(raw.clone());
-        let lc = loss::color_loss(composite(pred, alpha, px.gt.clone()), px.gt.clone());
+        let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
         let ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
         let lseg = self.seg_loss(&px, mode, &mat, spec);
@@ -627,9 +606,8 @@ impl Trainer {
         let p = &mut self.profile;
         p.encode += (t1 - t0).as_secs_f64();
         p.forward += t1.elapsed().as_secs_f64();
-        self.last_xs = xs;
         Forward {
-            enc_leaf: enc_leaf.then_some(enc),
+            enc_leaf,
             total,
             parts,
         }
@@ -646,16 +624,15 @@ impl Trainer {
         let f = self.forward(input, mode);
         let t2 = Instant::now();
         let mut grads = f.total.backward();
-        let g_enc = f.enc_leaf.map(|enc| {
+        let g_enc = f.enc_leaf.map(|(enc, xs)| {
             let g = enc.grad(&grads).expect("encoding is a leaf of the graph");
-            download(g)
+            (download(g), xs)
         });
         let t3 = Instant::now();
         let lr = self.cfg.lr;
-        let xs = std::mem::take(&mut self.last_xs);
         let m = &mut self.model;
         match (&mut self.grid_opt, g_enc) {
-            (GridOpt::Host { grad, adam }, Some(g)) => {
+            (GridOpt::Host { grad, adam }, Some((g, xs))) => {
                 m.grid.backward_adam(&xs, &g, grad, adam, lr as f32);
                 // An inference copy on the device (`upload_table`) is stale now.
                 m.device_grid = None;
@@ -697,10 +674,10 @@ impl Trainer {
         let grads = f.total.backward();
         let parts = LossParts::from_slice(&f.parts.try_into_vec_as::<f32>().expect("f32"));
         let (encoding, table) = match (&f.enc_leaf, &self.model.device_grid) {
-            (Some(enc), _) => {
+            (Some((enc, xs)), _) => {
                 let g = download(enc.grad(&grads).expect("encoding is a leaf"));
                 let mut tg = TableGrad::new(&self.model.grid);
-                self.model.grid.backward_table(&batch.x_unit, &g, &mut tg);
+                self.model.grid.backward_table(xs, &g, &mut tg);
                 (g, tg.values)
             }
             (None, Some(tables)) => {
@@ -752,8 +729,8 @@ impl Trainer {
                 mat.sigma.clone(),
                 mat.metallic.clone(),
                 spec,
-                px.seg.clone(),
-                px.n_seg,
+                px.t.seg.clone(),
+                px.t.n_seg,
                 self.cfg.lambda_part,
             ),
             SegMode::Semantic => {
@@ -795,13 +772,15 @@ impl Trainer {
 }
 
 /// The batch's unit-cube positions on the host: from the host batch, else read back.
-fn host_positions(px: &Pixels) -> Vec<[f32; 3]> {
+fn host_positions<'a>(px: &Pixels<'a>) -> Cow<'a, [[f32; 3]]> {
     match px.host {
-        Some(b) => b.x_unit.clone(),
-        None => download(px.x_unit.clone())
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect(),
+        Some(b) => Cow::Borrowed(&b.x_unit),
+        None => Cow::Owned(
+            download(px.t.x_unit.clone())
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect(),
+        ),
     }
 }
 

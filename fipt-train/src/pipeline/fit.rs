@@ -494,20 +494,7 @@ pub fn fit_resumable(
             .draw(shape.batch - shape.balanced, shape.balanced, &mut idx);
         tr.cfg.lr = schedule.lr_at(s, shape.steps);
         tr.cfg.lambda_d = lambda_d * schedule.lambda_d_at(s, shape.steps);
-        let l = match &device_store {
-            Some(ds) => {
-                let host = (run.mode == SegMode::Semantic).then(|| store.batch(&idx));
-                tr.step_on(
-                    StepInput::Device {
-                        store: ds,
-                        idx: &idx,
-                        host: host.as_ref(),
-                    },
-                    run.mode,
-                )
-            }
-            None => StepLoss::Ready(tr.step(&store.batch(&idx), run.mode)),
-        };
+        let l = step_entries(&mut tr, device_store.as_ref(), store, &idx, run.mode);
         tr.cfg.lambda_d = lambda_d;
         p.pending.push(l);
         p.step += 1;
@@ -531,7 +518,31 @@ pub fn fit_resumable(
 }
 
 /// Steps between two reads of the device path's losses.
-const LOSS_READ_EVERY: usize = 25;
+pub const LOSS_READ_EVERY: usize = 25;
+
+/// One step on the entries `idx` of `store`: by index from its device copy `ds` when the grid
+/// lives on the device (the loss left there; the semantic loss also gets the host batch), else
+/// as a host batch.
+pub fn step_entries(
+    tr: &mut Trainer,
+    ds: Option<&DeviceStore>,
+    store: &PixelStore,
+    idx: &[u32],
+    mode: SegMode,
+) -> StepLoss {
+    match ds {
+        Some(ds) => {
+            let host = (mode == SegMode::Semantic).then(|| store.batch(idx));
+            let input = StepInput::Device {
+                store: ds,
+                idx,
+                host: host.as_ref(),
+            };
+            tr.step_on(input, mode)
+        }
+        None => StepLoss::Ready(tr.step(&store.batch(idx), mode)),
+    }
+}
 
 #[cfg(test)]
 pub(crate) mod tests {
