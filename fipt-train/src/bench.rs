@@ -49,10 +49,10 @@ fn trace_all(accel: &Accel, rays: &[(Vec3, Vec3)], out: &mut [f32]) {
     out.par_chunks_mut(4096)
         .zip(rays.par_chunks(4096))
         .for_each(|(o, r)| {
-            for (t, &(org, dir)) in o.iter_mut().zip(r) {
-                *t = accel
-                    .closest(org, dir, 0.0, f32::INFINITY)
-                    .map_or(f32::INFINITY, |h| h.t);
+            let mut hits = vec![None; r.len()];
+            accel.closest_many(r, 0.0, f32::INFINITY, &mut hits);
+            for (t, h) in o.iter_mut().zip(hits) {
+                *t = h.map_or(f32::INFINITY, |h: fipt_bake::Hit| h.t);
             }
         });
 }
@@ -153,7 +153,13 @@ fn bench_rays(accel: &Accel, rays: &[(Vec3, Vec3)], reps: usize) -> Result<RayBe
 }
 
 /// `bench trace`: closest-hit throughput on incoherent and camera rays, 1 and 2 threads.
-pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) -> Result<()> {
+pub fn trace(
+    scene: Option<&Path>,
+    as_json: bool,
+    n_rays: usize,
+    reps: usize,
+    mesh_scale: u32,
+) -> Result<()> {
     let (name, mesh, cams) = match scene {
         Some(dir) => {
             let ds = Dataset::load(
@@ -172,6 +178,7 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
             ("builtin:procedural-room".to_string(), room.mesh, cams)
         }
     };
+    let mesh = mesh.subdivided(mesh_scale);
     let t0 = Instant::now();
     let accel = Accel::build(&mesh);
     let build_s = t0.elapsed().as_secs_f64();
@@ -183,6 +190,8 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
         "bench": "trace",
         "scene": name,
         "triangles": mesh.num_triangles(),
+        "mesh_scale": mesh_scale,
+        "traversal": accel.traversal(),
         "bvh_build_s": build_s,
         "reps": reps,
         "incoherent": &inc,
@@ -192,8 +201,9 @@ pub fn trace(scene: Option<&Path>, as_json: bool, n_rays: usize, reps: usize) ->
         println!("{}", serde_json::to_string_pretty(&r)?);
     } else {
         println!(
-            "scene {name}: {} triangles, BVH build {build_s:.3} s",
-            mesh.num_triangles()
+            "scene {name}: {} triangles, BVH build {build_s:.3} s, traversal {}",
+            mesh.num_triangles(),
+            accel.traversal()
         );
         for (kind, b) in [("incoherent", &inc), ("camera", &cam)] {
             for (t, x) in [("threads_1", &b.threads_1), ("threads_2", &b.threads_2)] {

@@ -265,6 +265,10 @@ enum BenchCmd {
         /// Timed repetitions per configuration (the median is reported).
         #[arg(long, default_value_t = 5)]
         reps: usize,
+        /// Split every triangle into 4^K by midpoint subdivision (the same surface), as the
+        /// peer script's `--mesh-scale`: throughput against triangle count.
+        #[arg(long, default_value_t = 0)]
+        mesh_scale: u32,
     },
     /// Paths and rays per second of the path tracer on a scene's true materials, 1 and 2 threads.
     Render {
@@ -554,7 +558,8 @@ fn main() {
                 json,
                 rays,
                 reps,
-            } => bench::trace(scene.as_deref(), json, rays, reps),
+                mesh_scale,
+            } => bench::trace(scene.as_deref(), json, rays, reps, mesh_scale),
             BenchCmd::Bake { json, reps } => bench::bake(json, reps),
             BenchCmd::Refine {
                 scene,

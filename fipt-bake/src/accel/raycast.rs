@@ -48,16 +48,19 @@ struct PixelHit {
     n: Vec3,
 }
 
-/// Casts all pixel-centre rays of a camera (rows in parallel).
+/// Casts all pixel-centre rays of a camera (rows in parallel, each row as one batch).
 pub fn cast_view(accel: &Accel, mesh: &Mesh, cam: &Camera) -> ViewHits {
     let (w, h) = (cam.width, cam.height);
     let o = cam.origin_f32();
-    let pixels: Vec<PixelHit> = (0..w * h)
+    let pixels: Vec<PixelHit> = (0..h)
         .into_par_iter()
-        .with_min_len(w)
-        .map(|px| {
-            let d = cam.pixel_direction(px / w, px % w);
-            match accel.closest(o, d, 0.0, f32::INFINITY) {
+        .flat_map_iter(|row| {
+            let rays: Vec<(Vec3, Vec3)> = (0..w)
+                .map(|col| (o, cam.pixel_direction(row, col)))
+                .collect();
+            let mut hits = vec![None; w];
+            accel.closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
+            rays.into_iter().zip(hits).map(|((_, d), hit)| match hit {
                 Some(hit) => PixelHit {
                     d,
                     t: hit.t,
@@ -72,7 +75,7 @@ pub fn cast_view(accel: &Accel, mesh: &Mesh, cam: &Camera) -> ViewHits {
                     p: Vec3::ZERO,
                     n: Vec3::ZERO,
                 },
-            }
+            })
         })
         .collect();
     ViewHits {

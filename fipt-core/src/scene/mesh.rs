@@ -19,6 +19,28 @@ impl Mesh {
         self.triangles.len()
     }
 
+    /// Every triangle split into 4^k by midpoint subdivision, as an unshared vertex soup: the
+    /// same surface with 4^k times the triangles (`bench trace --mesh-scale`, the peer
+    /// script's subdivision; tests of watertight traversal over many shared edges).
+    pub fn subdivided(&self, k: u32) -> Mesh {
+        let mut tris: Vec<[Vec3; 3]> = (0..self.num_triangles()).map(|t| self.corners(t)).collect();
+        for _ in 0..k {
+            tris = tris
+                .iter()
+                .flat_map(|&[a, b, c]| {
+                    let (ab, bc, ca) = ((a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5);
+                    [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
+                })
+                .collect();
+        }
+        Mesh {
+            vertices: tris.iter().flatten().copied().collect(),
+            triangles: (0..tris.len() as u32)
+                .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+                .collect(),
+        }
+    }
+
     /// The three corners of triangle `t`.
     #[inline]
     pub fn corners(&self, t: usize) -> [Vec3; 3] {
