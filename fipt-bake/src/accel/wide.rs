@@ -217,10 +217,13 @@ impl Bvh8 {
                 block.e2[a][l] = t.e2[a];
             }
             block.prim[l] = p;
-            // The corners as the intersector sees them (v0 + e rounds like the mesh's).
+            // The corners as the intersector sees them (v0 + e rounds like the mesh's), and
+            // the band of barycentric slack around the edges where it accepts hits too (up to
+            // BARY_EPS·(|e1| + |e2|) beyond them), so the box bounds every hit it can report.
+            let pad = Vec3::splat(2.0 * super::BARY_EPS * (t.e1.length() + t.e2.length()));
             for q in [t.v0, t.v0 + t.e1, t.v0 + t.e2] {
-                lo = lo.min(q);
-                hi = hi.max(q);
+                lo = lo.min(q - pad);
+                hi = hi.max(q + pad);
             }
         }
         self.leaves.push(block);

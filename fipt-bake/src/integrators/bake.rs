@@ -69,36 +69,61 @@ impl Baker<'_> {
     /// Shadings of one surface point seen from direction `wo` (unit, pointing away from the
     /// surface), normal `n` facing `wo`; `out` receives `ShadingLayout::DIM` values. Returns the
     /// number of rays cast (GGX samples below the horizon cast none).
+    ///
+    /// All the point's directions are drawn first (in the estimators' order of random
+    /// numbers), traced as one batch (`Accel::closest_many`), L′ looked up at every hit in one
+    /// pass (independent lookups, so their cache misses overlap), then summed in the same
+    /// order: the result equals tracing and looking up one ray at a time, bit for bit.
     pub fn shade_point(&self, x: Vec3, n: Vec3, wo: Vec3, rng: &mut Rng, out: &mut [f32]) -> u64 {
         let frame = Frame::new(n);
-        let mut rays = self.samples.diffuse as u64;
-        let mut ld = Vec3::ZERO;
-        for _ in 0..self.samples.diffuse {
-            let wi = frame.to_world(sample_cosine(rng.next_f32(), rng.next_f32()));
-            ld += radiance_along(self.accel, self.lf, x, wi);
+        let nd = self.samples.diffuse;
+        let mut rays: Vec<(Vec3, Vec3)> = Vec::with_capacity(self.samples.rays_per_pixel());
+        let push = |rays: &mut Vec<(Vec3, Vec3)>, w: Vec3| rays.push((x + w * RAY_EPS, w));
+        for _ in 0..nd {
+            push(
+                &mut rays,
+                frame.to_world(sample_cosine(rng.next_f32(), rng.next_f32())),
+            );
         }
-        ld /= self.samples.diffuse.max(1) as f32;
-        out[ShadingLayout::LD].copy_from_slice(&ld.to_array());
+        // Per specular sample: its roughness level and GGX weights.
+        let mut spec: Vec<(usize, f32, f32)> = Vec::with_capacity(rays.capacity() - nd);
         let wo_l = frame.to_local(wo);
         for (j, sigma) in roughness_levels().into_iter().enumerate() {
-            let (mut s0, mut s1) = (Vec3::ZERO, Vec3::ZERO);
-            let spp = self.samples.specular[j];
-            for _ in 0..spp {
-                let Some((wi, g0, g1)) =
+            for _ in 0..self.samples.specular[j] {
+                if let Some((wi, g0, g1)) =
                     sample_specular(wo_l, sigma, rng.next_f32(), rng.next_f32())
-                else {
-                    continue;
-                };
-                rays += 1;
-                let l = radiance_along(self.accel, self.lf, x, frame.to_world(wi).normalize());
-                s0 += l * g0;
-                s1 += l * g1;
+                {
+                    push(&mut rays, frame.to_world(wi).normalize());
+                    spec.push((j, g0, g1));
+                }
             }
-            let inv = 1.0 / spp.max(1) as f32;
+        }
+        let mut hits = vec![None; rays.len()];
+        self.accel
+            .closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
+        let radiance: Vec<Vec3> = rays
+            .iter()
+            .zip(&hits)
+            .map(|(&(o, w), h)| match h {
+                Some(h) => self
+                    .lf
+                    .query(o + w * h.t, self.accel.facing_normal(h.tri, w)),
+                None => Vec3::ZERO,
+            })
+            .collect();
+        let ld = radiance[..nd].iter().fold(Vec3::ZERO, |a, &l| a + l);
+        out[ShadingLayout::LD].copy_from_slice(&(ld / nd.max(1) as f32).to_array());
+        let mut s = [(Vec3::ZERO, Vec3::ZERO); ROUGHNESS_LEVELS];
+        for (&(j, g0, g1), &l) in spec.iter().zip(&radiance[nd..]) {
+            s[j].0 += l * g0;
+            s[j].1 += l * g1;
+        }
+        for (j, (s0, s1)) in s.into_iter().enumerate() {
+            let inv = 1.0 / self.samples.specular[j].max(1) as f32;
             out[ShadingLayout::ls0(j)].copy_from_slice(&(s0 * inv).to_array());
             out[ShadingLayout::ls1(j)].copy_from_slice(&(s1 * inv).to_array());
         }
-        rays
+        rays.len() as u64
     }
 
     /// Bakes every pixel of one view (`ShadingLayout::DIM` values per pixel, zeros where the

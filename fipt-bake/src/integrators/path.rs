@@ -275,19 +275,21 @@ impl PathScene<'_> {
         let mut hits: Vec<WaveHit> = Vec::new();
         let mut mats: Vec<SurfaceMaterial> = Vec::new();
         for depth in first_depth..=cfg.max_depth {
-            // Closest hits of every live ray.
-            paths
-                .par_iter()
-                .with_min_len(256)
-                .map(|ps| {
-                    if !ps.alive {
-                        return None;
+            // Closest hits of every live ray, traced in batches (`Accel::closest_many`).
+            hits.clear();
+            hits.resize(paths.len(), None);
+            hits.par_chunks_mut(256)
+                .zip(paths.par_chunks(256))
+                .for_each(|(h, p)| {
+                    let live: Vec<usize> = (0..p.len()).filter(|&i| p[i].alive).collect();
+                    let rays: Vec<(Vec3, Vec3)> =
+                        live.iter().map(|&i| (p[i].origin, p[i].dir)).collect();
+                    let mut out = vec![None; rays.len()];
+                    self.accel.closest_many(&rays, 0.0, f32::INFINITY, &mut out);
+                    for (&i, o) in live.iter().zip(out) {
+                        h[i] = o.map(|o| (o.t, o.tri));
                     }
-                    self.accel
-                        .closest(ps.origin, ps.dir, 0.0, f32::INFINITY)
-                        .map(|h| (h.t, h.tri))
-                })
-                .collect_into_vec(&mut hits);
+                });
             stats.rays += paths.iter().filter(|p| p.alive).count() as u64;
             // One batched material query for all hit points.
             let (idx, (points, tris)): (Vec<usize>, (Vec<Vec3>, Vec<u32>)) = hits
