@@ -148,7 +148,7 @@ impl Accel {
     #[inline]
     pub fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         match &self.wide {
-            Some(w) => w.closest(o, d, tmin, tmax).map(|(t, tri)| Hit { t, tri }),
+            Some(w) => w.closest(o, d, tmin, tmax),
             None => self.closest_obvhs(o, d, tmin, tmax),
         }
     }
@@ -165,13 +165,7 @@ impl Accel {
     ) {
         assert_eq!(rays.len(), out.len(), "closest_many: one output per ray");
         match &self.wide {
-            Some(w) => {
-                let mut raw = vec![None; rays.len()];
-                w.closest_many(rays, tmin, tmax, &mut raw);
-                for (o, r) in out.iter_mut().zip(raw) {
-                    *o = r.map(|(t, tri)| Hit { t, tri });
-                }
-            }
+            Some(w) => w.closest_many(rays, tmin, tmax, out),
             None => {
                 for (o, &(org, d)) in out.iter_mut().zip(rays) {
                     *o = self.closest_obvhs(org, d, tmin, tmax);

@@ -16,6 +16,7 @@
 //! the BVH build (obvhs and `sah`), shading. Where AVX2/FMA is missing (checked once at run
 //! time) `Accel` uses obvhs's own traversal instead.
 
+use super::Hit;
 use glam::Vec3;
 use obvhs::bvh2::Bvh2;
 
@@ -252,7 +253,7 @@ impl Bvh8 {
     /// Closest hit along `o + t·d`, t ∈ (tmin, tmax): (t, mesh triangle). Call only where
     /// `supported()`.
     #[inline]
-    pub(super) fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<(f32, u32)> {
+    pub(super) fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Accel` calls this only after `supported()` returned true.
         unsafe {
@@ -272,7 +273,7 @@ impl Bvh8 {
         rays: &[(Vec3, Vec3)],
         tmin: f32,
         tmax: f32,
-        out: &mut [Option<(f32, u32)>],
+        out: &mut [Option<Hit>],
     ) {
         assert_eq!(rays.len(), out.len());
         #[cfg(target_arch = "x86_64")]
@@ -305,7 +306,8 @@ impl Bvh8 {
 
 /// A reciprocal that stays finite: a zero component becomes ±1e30 with its sign, so that slab
 /// distances are ±inf or finite, never NaN (`-0.0` counts as positive, as in obvhs's fix).
-#[inline(always)]
+/// The traversal's ray setup computes this for three components at once.
+#[cfg(test)]
 fn safe_rcp(x: f32) -> f32 {
     if x.abs() < 1e-30 {
         if x.is_sign_negative() && x != 0.0 {
@@ -336,27 +338,50 @@ mod simd {
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     fn setup(o: Vec3, d: Vec3) -> RaySetup {
-        let inv = Vec3::new(safe_rcp(d.x), safe_rcp(d.y), safe_rcp(d.z));
+        // `safe_rcp` on all three components at once (the same values, bit for bit): 1/d, with
+        // |d| < 1e-30 replaced by ±1e30 (+ for ±0), so slab distances are never NaN.
+        let dv = _mm_set_ps(0.0, d.z, d.y, d.x);
+        let tiny = _mm_cmplt_ps(_mm_andnot_ps(_mm_set1_ps(-0.0), dv), _mm_set1_ps(1e-30));
+        let big = _mm_blendv_ps(
+            _mm_set1_ps(1e30),
+            _mm_set1_ps(-1e30),
+            _mm_cmplt_ps(dv, _mm_setzero_ps()),
+        );
+        let inv = _mm_blendv_ps(_mm_div_ps(_mm_set1_ps(1.0), dv), big, tiny);
+        let org_inv = _mm_mul_ps(_mm_set_ps(0.0, o.z, o.y, o.x), inv);
+        let neg = _mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps())) as usize;
         let mut near = [0; 3];
         let mut far = [0; 3];
         for a in 0..3 {
-            let neg = (inv[a] < 0.0) as usize;
-            near[a] = a + 3 * neg;
-            far[a] = a + 3 * (1 - neg);
+            let n = (neg >> a) & 1;
+            near[a] = a + 3 * n;
+            far[a] = a + 3 * (1 - n);
         }
-        let b = |v: Vec3| {
+        let b = |v: __m128| {
             [
-                _mm256_set1_ps(v.x),
-                _mm256_set1_ps(v.y),
-                _mm256_set1_ps(v.z),
+                _mm256_broadcastss_ps(v),
+                _mm256_broadcastss_ps(_mm_shuffle_ps::<0b01_01_01_01>(v, v)),
+                _mm256_broadcastss_ps(_mm_shuffle_ps::<0b10_10_10_10>(v, v)),
             ]
         };
         RaySetup {
             inv: b(inv),
-            org_inv: b(o * inv),
+            org_inv: b(org_inv),
             near,
             far,
         }
+    }
+
+    /// The setup's 1/d, for the test against `safe_rcp`.
+    #[cfg(test)]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) fn setup_inv(o: Vec3, d: Vec3) -> Vec3 {
+        let r = setup(o, d);
+        Vec3::new(
+            _mm256_cvtss_f32(r.inv[0]),
+            _mm256_cvtss_f32(r.inv[1]),
+            _mm256_cvtss_f32(r.inv[2]),
+        )
     }
 
     /// Slab test of the eight child boxes: the entry distances and the mask of boxes entered
@@ -556,7 +581,7 @@ mod simd {
         d: Vec3,
         tmin: f32,
         mut tmax: f32,
-    ) -> Option<(f32, u32)> {
+    ) -> Option<Hit> {
         if bvh.nodes.is_empty() {
             return None;
         }
@@ -565,7 +590,7 @@ mod simd {
         let (sc, st) = stack.ptrs();
         let (mut best, mut code, mut sp) = (u32::MAX, 0u32, 0usize);
         while step!(bvh, r, o4, d4, tmin, tmax, best, code, sp, sc, st) {}
-        (best != u32::MAX).then_some((tmax, best))
+        (best != u32::MAX).then_some(Hit { t: tmax, tri: best })
     }
 
     /// Closest hits of many rays, two walks interleaved step by step so that one ray's memory
@@ -577,7 +602,7 @@ mod simd {
         rays: &[(Vec3, Vec3)],
         tmin: f32,
         tmax: f32,
-        out: &mut [Option<(f32, u32)>],
+        out: &mut [Option<Hit>],
     ) {
         let n = rays.len();
         if bvh.nodes.is_empty() || n < 2 {
@@ -605,10 +630,10 @@ mod simd {
             let more_a = step!(bvh, ra, oa, da, tmin, ta, ba, ca, pa, sca, sta);
             let more_b = step!(bvh, rb, ob, db, tmin, tb, bb, cb, pb, scb, stb);
             if !more_a {
-                out[ia] = (ba != u32::MAX).then_some((ta, ba));
+                out[ia] = (ba != u32::MAX).then_some(Hit { t: ta, tri: ba });
                 if next == n {
                     while step!(bvh, rb, ob, db, tmin, tb, bb, cb, pb, scb, stb) {}
-                    out[ib] = (bb != u32::MAX).then_some((tb, bb));
+                    out[ib] = (bb != u32::MAX).then_some(Hit { t: tb, tri: bb });
                     return;
                 }
                 let (o, d) = rays[next];
@@ -617,10 +642,10 @@ mod simd {
                 next += 1;
             }
             if !more_b {
-                out[ib] = (bb != u32::MAX).then_some((tb, bb));
+                out[ib] = (bb != u32::MAX).then_some(Hit { t: tb, tri: bb });
                 if next == n {
                     while step!(bvh, ra, oa, da, tmin, ta, ba, ca, pa, sca, sta) {}
-                    out[ia] = (ba != u32::MAX).then_some((ta, ba));
+                    out[ia] = (ba != u32::MAX).then_some(Hit { t: ta, tri: ba });
                     return;
                 }
                 let (o, d) = rays[next];
@@ -671,6 +696,34 @@ mod simd {
                 }
                 sp -= 1;
                 code = *stack.add(sp);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The vectorised ray setup's 1/d is `safe_rcp` bit for bit, on the values where it
+    /// matters: ±0, denormals, the ±1e-30 boundary and ordinary values.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn setup_reciprocal_is_safe_rcp() {
+        if !Bvh8::supported() {
+            return;
+        }
+        let vals = [
+            0.0f32, -0.0, 1e-40, -1e-40, 1e-30, -1e-30, 9.9e-31, -9.9e-31, 0.3, -0.7, 1.0, -1.0,
+        ];
+        for &x in &vals {
+            for &y in &vals {
+                let d = Vec3::new(x, y, 0.5);
+                // SAFETY: AVX2 and FMA were checked above.
+                let inv = unsafe { simd::setup_inv(Vec3::ZERO, d) };
+                for a in 0..3 {
+                    assert_eq!(inv[a].to_bits(), safe_rcp(d[a]).to_bits(), "{d} axis {a}");
+                }
             }
         }
     }
