@@ -522,19 +522,14 @@ mod simd {
                     } else {
                         let l = $bvh.leaves.get_unchecked(($code & !LEAF) as usize);
                         let t = leaf(l, $o4, $d4, $tmin, $tmax);
-                        let mut hit = _mm_movemask_ps(_mm_cmplt_ps(t, _mm_set1_ps($tmax))) as u32;
-                        if hit != 0 {
-                            let mut ts = MaybeUninit::<[f32; 4]>::uninit();
-                            _mm_storeu_ps(ts.as_mut_ptr() as *mut f32, t);
-                            let ts = ts.assume_init();
-                            while hit != 0 {
-                                let j = hit.trailing_zeros() as usize;
-                                hit &= hit - 1;
-                                if ts[j] < $tmax {
-                                    $tmax = ts[j];
-                                    $best = l.prim[j];
-                                }
-                            }
+                        // The nearest lane (the first of equals), without a loop over lanes.
+                        let m = _mm_min_ps(t, _mm_shuffle_ps::<0b10_11_00_01>(t, t));
+                        let m = _mm_min_ps(m, _mm_shuffle_ps::<0b01_00_11_10>(m, m));
+                        let near = _mm_cvtss_f32(m);
+                        if near < $tmax {
+                            let j = _mm_movemask_ps(_mm_cmpeq_ps(t, m)).trailing_zeros();
+                            $tmax = near;
+                            $best = l.prim[j as usize];
                         }
                     }
                     // Pop the nearest pending child still in front of the closest hit.
