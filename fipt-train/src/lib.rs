@@ -4,6 +4,7 @@
 //!
 //! Must not touch: model maths (fipt-core) or ray tracing (fipt-bake).
 
+pub mod alloc;
 pub mod bench;
 pub mod cache;
 pub mod check;

@@ -346,6 +346,7 @@ enum BenchCmd {
 }
 
 fn main() {
+    fipt_train::alloc::tune();
     let cli = Cli::parse();
     let cmd = cli.cmd.unwrap_or(Cmd::Demo {
         out: PathBuf::from("demo"),
