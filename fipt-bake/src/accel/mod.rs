@@ -1,6 +1,7 @@
-//! The ray-casting acceleration structure: a binned-SAH BVH2 (`sah`) collapsed by obvhs into
-//! its compressed wide BVH (CWBVH), traversed by `wide`'s eight-wide AVX2 traversal where the
-//! CPU has AVX2 and FMA, else by obvhs's own.
+//! The ray-casting acceleration structure: a binned-SAH BVH2 (`sah`), collapsed into `wide`'s
+//! eight-wide BVH and traversed with AVX2 where the CPU has AVX2 and FMA, else collapsed by
+//! obvhs into its compressed wide BVH (CWBVH) and traversed by obvhs. Only the one in use is
+//! built.
 //!
 //! Owns: BVH build, closest-hit and occlusion queries, pixel-centre ray casting (`raycast`).
 //! Must not touch: shading.
@@ -12,6 +13,8 @@ mod wide;
 use fipt_core::scene::Mesh;
 use glam::{Vec3, Vec3A};
 use obvhs::{
+    aabb::Aabb,
+    bvh2::Bvh2,
     cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh},
     ray::{Ray, RayHit},
     triangle::Triangle,
@@ -72,119 +75,41 @@ impl LeafTri {
 
 /// BVH over a mesh, answering closest-hit and any-hit queries.
 pub struct Accel {
-    bvh: CwBvh,
-    /// The wide SIMD traversal's copy of the tree; `None` where the CPU lacks AVX2/FMA (then
-    /// obvhs's traversal answers).
-    wide: Option<wide::Bvh8>,
-    leaf_tris: Vec<LeafTri>,
-    leaf_prim: Vec<u32>,
+    traversal: Traversal,
     /// Unit winding normal per triangle (mesh order).
     normals: Vec<Vec3>,
 }
 
-impl Accel {
-    /// Builds the BVH: a binned-SAH BVH2 (`sah`) collapsed into obvhs' compressed wide BVH.
-    pub fn build(mesh: &Mesh) -> Self {
-        let tris: Vec<Triangle> = (0..mesh.num_triangles())
-            .map(|t| {
-                let [a, b, c] = mesh.corners(t);
-                Triangle {
-                    v0: a.into(),
-                    v1: b.into(),
-                    v2: c.into(),
-                }
-            })
-            .collect();
-        let boxes: Vec<_> = tris.iter().map(|t| t.aabb()).collect();
-        let bvh2 = sah::build_bvh2(&boxes);
-        let bvh = bvh2_to_cwbvh(&bvh2, 3, true, false);
-        let leaf_prim: Vec<u32> = bvh.primitive_indices.clone();
-        let leaf_tris: Vec<LeafTri> = leaf_prim
-            .iter()
-            .map(|&p| LeafTri::new(mesh.corners(p as usize)))
-            .collect();
-        // `FIPT_TRAVERSAL=obvhs` forces obvhs's traversal (to compare the two on one machine).
-        let forced = std::env::var("FIPT_TRAVERSAL").is_ok_and(|v| v == "obvhs");
-        let wide = (wide::Bvh8::supported() && !forced)
-            .then(|| {
-                let tris: Vec<wide::TriIn> = tris
-                    .iter()
-                    .map(|t| wide::TriIn {
-                        v0: t.v0.into(),
-                        e1: (t.v1 - t.v0).into(),
-                        e2: (t.v2 - t.v0).into(),
-                    })
-                    .collect();
-                wide::Bvh8::from_bvh2(&bvh2, &tris)
-            })
-            .filter(|w| w.fits_stack());
+/// The tree and the traversal that answer queries.
+enum Traversal {
+    /// `wide`'s eight-wide AVX2 traversal.
+    Wide(wide::Bvh8),
+    /// obvhs's CWBVH traversal: CPUs without AVX2/FMA, a tree too deep for the wide stack,
+    /// or `FIPT_TRAVERSAL=obvhs`.
+    Obvhs(ObvhsBvh),
+}
+
+/// obvhs's compressed wide BVH, with the triangles copied into its leaf order so that a leaf
+/// reads contiguous memory.
+struct ObvhsBvh {
+    bvh: CwBvh,
+    leaf_tris: Vec<LeafTri>,
+    leaf_prim: Vec<u32>,
+}
+
+impl ObvhsBvh {
+    fn build(bvh2: &Bvh2, tris: &[LeafTri]) -> Self {
+        let bvh = bvh2_to_cwbvh(bvh2, 3, true, false);
+        let leaf_prim = bvh.primitive_indices.clone();
+        let leaf_tris = leaf_prim.iter().map(|&p| tris[p as usize]).collect();
         Self {
             bvh,
-            wide,
             leaf_tris,
             leaf_prim,
-            normals: (0..mesh.num_triangles()).map(|t| mesh.normal(t)).collect(),
         }
     }
 
-    /// Unit normal of triangle `tri` turned to face against direction `d` (the side a ray
-    /// along `d` hits).
-    #[inline]
-    pub fn facing_normal(&self, tri: u32, d: Vec3) -> Vec3 {
-        let n = self.normals[tri as usize];
-        if n.dot(d) > 0.0 { -n } else { n }
-    }
-
-    /// Which traversal answers queries: `"avx2-bvh8"` or `"obvhs-cwbvh"`.
-    pub fn traversal(&self) -> &'static str {
-        if self.wide.is_some() {
-            "avx2-bvh8"
-        } else {
-            "obvhs-cwbvh"
-        }
-    }
-
-    /// Closest hit along `o + t·d`, t ∈ (tmin, tmax). `d` should be unit length.
-    #[inline]
-    pub fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
-        match &self.wide {
-            Some(w) => w.closest(o, d, tmin, tmax),
-            None => self.closest_obvhs(o, d, tmin, tmax),
-        }
-    }
-
-    /// `closest` of every ray `(o, d)` of `rays` into `out` (same length). Where the wide
-    /// traversal runs, several rays are traced interleaved, which hides one ray's memory and
-    /// branch latency behind another's work; each result equals `closest`'s.
-    pub fn closest_many(
-        &self,
-        rays: &[(Vec3, Vec3)],
-        tmin: f32,
-        tmax: f32,
-        out: &mut [Option<Hit>],
-    ) {
-        assert_eq!(rays.len(), out.len(), "closest_many: one output per ray");
-        match &self.wide {
-            Some(w) => w.closest_many(rays, tmin, tmax, out),
-            None => {
-                for (o, &(org, d)) in out.iter_mut().zip(rays) {
-                    *o = self.closest_obvhs(org, d, tmin, tmax);
-                }
-            }
-        }
-    }
-
-    /// True when anything lies along `o + t·d`, t ∈ (tmin, tmax).
-    #[inline]
-    pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
-        match &self.wide {
-            Some(w) => w.occluded(o, d, tmin, tmax),
-            None => self.occluded_obvhs(o, d, tmin, tmax),
-        }
-    }
-
-    /// `closest` by obvhs's CWBVH traversal.
-    fn closest_obvhs(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+    fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         // -0.0 components become +0.0: obvhs's traversal misses every hit of a ray with a
         // negative-zero component (found by the demo room's axis-aligned probes).
         let (o, d) = (Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO);
@@ -203,13 +128,107 @@ impl Accel {
         }
     }
 
-    /// `occluded` by obvhs's CWBVH traversal.
-    fn occluded_obvhs(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
         let ray = Ray::new(Vec3A::from(o), Vec3A::from(d) + Vec3A::ZERO, tmin, tmax);
         let tris = &self.leaf_tris;
         !self.bvh.ray_traverse_miss(ray, |r, id| {
             tris[id].intersect(r.origin, r.direction, r.tmin, r.tmax)
         })
+    }
+}
+
+impl Accel {
+    /// Builds the BVH: a binned-SAH BVH2 (`sah`), collapsed for the wide traversal where this
+    /// CPU runs it, else for obvhs's. `FIPT_TRAVERSAL=obvhs` forces obvhs's (to compare the
+    /// two on one machine).
+    pub fn build(mesh: &Mesh) -> Self {
+        let forced = std::env::var("FIPT_TRAVERSAL").is_ok_and(|v| v == "obvhs");
+        Self::build_with(mesh, wide::Bvh8::supported() && !forced)
+    }
+
+    /// `build`, with the wide traversal only if `wide` (the caller checked the CPU).
+    fn build_with(mesh: &Mesh, wide: bool) -> Self {
+        let tris: Vec<LeafTri> = (0..mesh.num_triangles())
+            .map(|t| LeafTri::new(mesh.corners(t)))
+            .collect();
+        let boxes: Vec<Aabb> = (0..mesh.num_triangles())
+            .map(|t| {
+                let [a, b, c] = mesh.corners(t);
+                Triangle {
+                    v0: a.into(),
+                    v1: b.into(),
+                    v2: c.into(),
+                }
+                .aabb()
+            })
+            .collect();
+        let bvh2 = sah::build_bvh2(&boxes);
+        let traversal = match wide
+            .then(|| wide::Bvh8::from_bvh2(&bvh2, &tris))
+            .filter(|w| w.fits_stack())
+        {
+            Some(w) => Traversal::Wide(w),
+            None => Traversal::Obvhs(ObvhsBvh::build(&bvh2, &tris)),
+        };
+        Self {
+            traversal,
+            normals: (0..mesh.num_triangles()).map(|t| mesh.normal(t)).collect(),
+        }
+    }
+
+    /// Unit normal of triangle `tri` turned to face against direction `d` (the side a ray
+    /// along `d` hits).
+    #[inline]
+    pub fn facing_normal(&self, tri: u32, d: Vec3) -> Vec3 {
+        let n = self.normals[tri as usize];
+        if n.dot(d) > 0.0 { -n } else { n }
+    }
+
+    /// Which traversal answers queries: `"avx2-bvh8"` or `"obvhs-cwbvh"`.
+    pub fn traversal(&self) -> &'static str {
+        match self.traversal {
+            Traversal::Wide(_) => "avx2-bvh8",
+            Traversal::Obvhs(_) => "obvhs-cwbvh",
+        }
+    }
+
+    /// Closest hit along `o + t·d`, t ∈ (tmin, tmax). `d` should be unit length.
+    #[inline]
+    pub fn closest(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+        match &self.traversal {
+            Traversal::Wide(w) => w.closest(o, d, tmin, tmax),
+            Traversal::Obvhs(b) => b.closest(o, d, tmin, tmax),
+        }
+    }
+
+    /// `closest` of every ray `(o, d)` of `rays` into `out` (same length). Where the wide
+    /// traversal runs, several rays are traced interleaved, which hides one ray's memory and
+    /// branch latency behind another's work; each result equals `closest`'s.
+    pub fn closest_many(
+        &self,
+        rays: &[(Vec3, Vec3)],
+        tmin: f32,
+        tmax: f32,
+        out: &mut [Option<Hit>],
+    ) {
+        assert_eq!(rays.len(), out.len(), "closest_many: one output per ray");
+        match &self.traversal {
+            Traversal::Wide(w) => w.closest_many(rays, tmin, tmax, out),
+            Traversal::Obvhs(b) => {
+                for (o, &(org, d)) in out.iter_mut().zip(rays) {
+                    *o = b.closest(org, d, tmin, tmax);
+                }
+            }
+        }
+    }
+
+    /// True when anything lies along `o + t·d`, t ∈ (tmin, tmax).
+    #[inline]
+    pub fn occluded(&self, o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+        match &self.traversal {
+            Traversal::Wide(w) => w.occluded(o, d, tmin, tmax),
+            Traversal::Obvhs(b) => b.occluded(o, d, tmin, tmax),
+        }
     }
 }
 
@@ -219,58 +238,80 @@ mod tests {
     use fipt_core::rng::Rng;
     use fipt_core::scene::procedural::room;
 
+    /// The traversals to test on this CPU: the wide one where it runs, and obvhs's.
+    fn both(mesh: &Mesh) -> Vec<Accel> {
+        let mut v = vec![Accel::build_with(mesh, false)];
+        if wide::Bvh8::supported() {
+            v.push(Accel::build_with(mesh, true));
+        }
+        v
+    }
+
+    /// The closest hit by brute force over every triangle: distance and the first triangle
+    /// at it in mesh order (+inf and `u32::MAX` on a miss).
+    fn brute_closest(mesh: &Mesh, o: Vec3, d: Vec3) -> (f32, u32) {
+        let mut best = (f32::INFINITY, u32::MAX);
+        for t in 0..mesh.num_triangles() {
+            let tt =
+                LeafTri::new(mesh.corners(t)).intersect(o.into(), d.into(), 0.0, f32::INFINITY);
+            if tt < best.0 {
+                best = (tt, t as u32);
+            }
+        }
+        best
+    }
+
     /// Axis-aligned rays hit the closed room in all six directions, with negative-zero
     /// components too (`-Vec3::X` is (-1, -0, -0), which obvhs alone misses).
     #[test]
     fn axis_rays_with_negative_zero_hit() {
         let r = room(Vec3::new(4.0, 2.6, 3.2), 1);
-        let accel = Accel::build(&r.mesh);
-        let o = Vec3::new(1.03, 1.31, 0.57);
-        for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
-            assert!(accel.closest(o, d, 0.0, f32::INFINITY).is_some(), "{d}");
-            assert!(accel.occluded(o, d, 0.0, 100.0), "{d}");
+        for accel in both(&r.mesh) {
+            let o = Vec3::new(1.03, 1.31, 0.57);
+            for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
+                let tr = accel.traversal();
+                assert!(
+                    accel.closest(o, d, 0.0, f32::INFINITY).is_some(),
+                    "{tr} {d}"
+                );
+                assert!(accel.occluded(o, d, 0.0, 100.0), "{tr} {d}");
+            }
         }
     }
 
-    /// Brute force over all triangles agrees with the BVH on random rays.
+    /// Brute force over all triangles agrees with the BVH on random rays, for both
+    /// traversals.
     #[test]
     fn bvh_matches_brute_force() {
         let r = room(Vec3::new(5.0, 2.7, 4.0), 1);
         let mesh = &r.mesh;
-        let accel = Accel::build(mesh);
-        let mut rng = Rng::new(1, 2);
-        let mut hits = 0;
-        for _ in 0..3000 {
-            let o = Vec3::new(
-                0.2 + 4.6 * rng.next_f32(),
-                0.1 + 2.5 * rng.next_f32(),
-                0.2 + 3.6 * rng.next_f32(),
-            );
-            let z = 2.0 * rng.next_f32() - 1.0;
-            let ph = std::f32::consts::TAU * rng.next_f32();
-            let s = (1.0 - z * z).sqrt();
-            let d = Vec3::new(s * ph.cos(), z, s * ph.sin());
-            let mut best = (f32::INFINITY, u32::MAX);
-            for t in 0..mesh.num_triangles() {
-                let lt = LeafTri::new(mesh.corners(t));
-                let tt = lt.intersect(o.into(), d.into(), 0.0, f32::INFINITY);
-                if tt < best.0 {
-                    best = (tt, t as u32);
+        for accel in both(mesh) {
+            let mut rng = Rng::new(1, 2);
+            let mut hits = 0;
+            for _ in 0..3000 {
+                let o = Vec3::new(
+                    0.2 + 4.6 * rng.next_f32(),
+                    0.1 + 2.5 * rng.next_f32(),
+                    0.2 + 3.6 * rng.next_f32(),
+                );
+                let z = 2.0 * rng.next_f32() - 1.0;
+                let ph = std::f32::consts::TAU * rng.next_f32();
+                let s = (1.0 - z * z).sqrt();
+                let d = Vec3::new(s * ph.cos(), z, s * ph.sin());
+                let best = brute_closest(mesh, o, d);
+                match accel.closest(o, d, 0.0, f32::INFINITY) {
+                    Some(h) => {
+                        hits += 1;
+                        assert!((h.t - best.0).abs() < 1e-5, "{h:?} vs {best:?}");
+                        assert!(accel.occluded(o, d, 0.0, h.t * 1.01));
+                        assert!(!accel.occluded(o, d, 0.0, h.t * 0.99));
+                    }
+                    None => assert!(best.0.is_infinite()),
                 }
             }
-            let h = accel.closest(o, d, 0.0, f32::INFINITY);
-            match h {
-                Some(h) => {
-                    hits += 1;
-                    assert!((h.t - best.0).abs() < 1e-5, "{h:?} vs {best:?}");
-                    assert!(accel.occluded(o, d, 0.0, h.t * 1.01));
-                    assert!(!accel.occluded(o, d, 0.0, h.t * 0.99));
-                }
-                None => assert!(best.0.is_infinite()),
-            }
+            // A closed room: every ray from inside hits something.
+            assert_eq!(hits, 3000, "{}", accel.traversal());
         }
-        // A closed room: every ray from inside hits something.
-        assert_eq!(hits, 3000);
     }
 
     /// Random rays from inside a room: origins uniform in the room, directions uniform on
@@ -309,27 +350,19 @@ mod tests {
         let r = room(Vec3::new(5.0, 2.7, 4.0), 2);
         let mesh = &r.mesh;
         let accel = Accel::build(mesh);
+        let reference = Accel::build_with(mesh, false);
         let (lo, hi) = mesh.bounds();
         let rays = probe_rays(lo, hi, 4000, 3);
-        let brute = |o: Vec3, d: Vec3| {
-            let mut best = f32::INFINITY;
-            for t in 0..mesh.num_triangles() {
-                let lt = LeafTri::new(mesh.corners(t));
-                best = best.min(lt.intersect(o.into(), d.into(), 0.0, f32::INFINITY));
-            }
-            best
-        };
         let mut batch = vec![None; rays.len()];
         accel.closest_many(&rays, 0.0, f32::INFINITY, &mut batch);
         let mut hits = 0;
         for (&(o, d), many) in rays.iter().zip(&batch) {
-            let want = brute(o, d);
+            let want = brute_closest(mesh, o, d).0;
             let h = accel.closest(o, d, 0.0, f32::INFINITY);
-            let reference = accel.closest_obvhs(o, d, 0.0, f32::INFINITY);
             assert_eq!(h, *many, "batched query differs at {o} {d}");
             assert_eq!(
                 h.map(|h| h.t),
-                reference.map(|h| h.t),
+                reference.closest(o, d, 0.0, f32::INFINITY).map(|h| h.t),
                 "obvhs differs at {o} {d}"
             );
             let h = h.unwrap_or_else(|| panic!("ray {o} {d} left a closed room"));
@@ -340,7 +373,7 @@ mod tests {
             assert!(!accel.occluded(o, d, 0.0, h.t * 0.999));
             assert_eq!(
                 accel.occluded(o, d, 0.0, h.t * 1.001),
-                accel.occluded_obvhs(o, d, 0.0, h.t * 1.001)
+                reference.occluded(o, d, 0.0, h.t * 1.001)
             );
             hits += 1;
         }
@@ -399,14 +432,7 @@ mod tests {
             }
             let o = x + d * crate::integrators::bake::RAY_EPS;
             let h = accel.closest(o, d, 0.0, f32::INFINITY);
-            let mut best = (f32::INFINITY, u32::MAX);
-            for k in 0..mesh.num_triangles() {
-                let tt =
-                    LeafTri::new(mesh.corners(k)).intersect(o.into(), d.into(), 0.0, f32::INFINITY);
-                if tt < best.0 {
-                    best = (tt, k as u32);
-                }
-            }
+            let best = brute_closest(mesh, o, d);
             let ht = h.map_or(f32::INFINITY, |h| h.t);
             assert_eq!(
                 ht.to_bits(),

@@ -3,20 +3,20 @@
 //! boxes in one pass of fused multiply-subtracts) and leaves of up to four triangles
 //! intersected in one SSE pass — the layout of Embree's BVH8 with `Triangle4` leaves.
 //!
-//! The tree is obvhs's compressed wide BVH (the SAH-optimal BVH2 → BVH8 collapse, up to three
-//! triangles per leaf), read once: its topology is kept, its 8-bit quantised child boxes are
-//! replaced by exact float boxes recomputed from the triangles, and each leaf's triangles are
-//! copied into one 4-lane block (a vertex and two edges per lane, the fourth lane degenerate).
+//! The tree is collapsed from `sah`'s BVH2 the way Embree does it (`Bvh8::from_bvh2`): the
+//! surface area heuristic picks the subtrees that become one leaf block, and each inner node
+//! opens its largest child until it has eight. Child boxes are exact float boxes of the
+//! triangles as the intersector sees them.
 //!
 //! The triangle test is the same Möller–Trumbore, in the same order of operations, as
 //! `LeafTri::intersect` (no fused multiply-add), so a hit distance is bit-identical to the
 //! scalar test's; only the box test uses FMA, and it only culls.
 //!
-//! Owns: the wide node and leaf layout, closest-hit and any-hit traversal. Must not touch:
-//! the BVH build (obvhs and `sah`), shading. Where AVX2/FMA is missing (checked once at run
-//! time) `Accel` uses obvhs's own traversal instead.
+//! Owns: the BVH2 → BVH8 collapse, the wide node and leaf layout, closest-hit and any-hit
+//! traversal. Must not touch: the BVH2 build (`sah`), shading. Where AVX2/FMA is missing
+//! (checked once at run time) `Accel` uses obvhs's own tree and traversal instead.
 
-use super::Hit;
+use super::{Hit, LeafTri};
 use glam::Vec3;
 use obvhs::bvh2::Bvh2;
 
@@ -33,7 +33,7 @@ const TRAVERSAL_COST: f32 = 0.05;
 struct Collapse<'a> {
     bvh2: &'a Bvh2,
     leaf: &'a [bool],
-    tris: &'a [TriIn],
+    tris: &'a [LeafTri],
 }
 
 impl Collapse<'_> {
@@ -43,8 +43,13 @@ impl Collapse<'_> {
     }
 
     fn area(&self, k: usize) -> f32 {
-        self.bvh2.nodes[k].aabb().half_area()
+        half_area(self.bvh2, k)
     }
+}
+
+/// Half the surface area of BVH2 node `k`'s box.
+fn half_area(bvh2: &Bvh2, k: usize) -> f32 {
+    bvh2.nodes[k].aabb().half_area()
 }
 
 /// A leaf child's code has this bit set; the rest is the index of its `Tri4` block.
@@ -87,19 +92,12 @@ pub(super) struct Bvh8 {
     depth: usize,
 }
 
-/// A triangle as `Accel` stores it: vertex 0 and two edges.
-pub(super) struct TriIn {
-    pub v0: Vec3,
-    pub e1: Vec3,
-    pub e2: Vec3,
-}
-
 impl Bvh8 {
     /// Collapses a BVH2 with one primitive per leaf (`sah::build_bvh2`) into eight-wide nodes,
     /// Embree's way: a subtree of at most `LEAF_MAX` triangles becomes one leaf block; an inner
     /// node takes the two children of its BVH2 node and keeps opening the largest-area child
     /// that is not such a leaf until it has eight. `tris` is in mesh order.
-    pub(super) fn from_bvh2(bvh2: &Bvh2, tris: &[TriIn]) -> Self {
+    pub(super) fn from_bvh2(bvh2: &Bvh2, tris: &[LeafTri]) -> Self {
         let mut out = Bvh8 {
             nodes: Vec::new(),
             leaves: Vec::new(),
@@ -112,7 +110,6 @@ impl Bvh8 {
         // node and whether it is cheaper as one leaf block than split, by the surface area
         // heuristic: a block test costs 1, a binary split `TRAVERSAL_COST` plus the children's
         // costs weighted by the chance that a ray entering the node enters them.
-        let trav = TRAVERSAL_COST;
         let nn = bvh2.nodes.len();
         let (mut count, mut cost, mut leaf) = (vec![0u32; nn], vec![0f32; nn], vec![false; nn]);
         for i in (0..nn).rev() {
@@ -125,9 +122,9 @@ impl Bvh8 {
             }
             let (l, r) = (n.first_index as usize, n.first_index as usize + 1);
             count[i] = count[l] + count[r];
-            let area = |k: usize| bvh2.nodes[k].aabb().half_area();
+            let area = |k: usize| half_area(bvh2, k);
             let a = area(i).max(f32::MIN_POSITIVE);
-            let split = trav + (area(l) * cost[l] + area(r) * cost[r]) / a;
+            let split = TRAVERSAL_COST + (area(l) * cost[l] + area(r) * cost[r]) / a;
             leaf[i] = count[i] as usize <= LEAF_MAX && split >= 1.0;
             cost[i] = if leaf[i] { 1.0 } else { split };
         }
@@ -215,17 +212,18 @@ impl Bvh8 {
         let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
         for (l, &p) in prims.iter().enumerate() {
             let t = &c.tris[p as usize];
+            let (v0, e1, e2) = (Vec3::from(t.v0), Vec3::from(t.e1), Vec3::from(t.e2));
             for a in 0..3 {
-                block.v0[a][l] = t.v0[a];
-                block.e1[a][l] = t.e1[a];
-                block.e2[a][l] = t.e2[a];
+                block.v0[a][l] = v0[a];
+                block.e1[a][l] = e1[a];
+                block.e2[a][l] = e2[a];
             }
             block.prim[l] = p;
             // The corners as the intersector sees them (v0 + e rounds like the mesh's), and
             // the band of barycentric slack around the edges where it accepts hits too (up to
             // BARY_EPS·(|e1| + |e2|) beyond them), so the box bounds every hit it can report.
-            let pad = Vec3::splat(2.0 * super::BARY_EPS * (t.e1.length() + t.e2.length()));
-            for q in [t.v0, t.v0 + t.e1, t.v0 + t.e2] {
+            let pad = Vec3::splat(2.0 * super::BARY_EPS * (e1.length() + e2.length()));
+            for q in [v0, v0 + e1, v0 + e2] {
                 lo = lo.min(q - pad);
                 hi = hi.max(q + pad);
             }
@@ -269,8 +267,8 @@ impl Bvh8 {
         }
     }
 
-    /// `closest` of every ray of `rays`, into `out` (same length), several rays interleaved.
-    /// Call only where `supported()`.
+    /// `closest` of every ray of `rays`, into `out` (same length, checked by `Accel`), several
+    /// rays interleaved. Call only where `supported()`.
     pub(super) fn closest_many(
         &self,
         rays: &[(Vec3, Vec3)],
@@ -278,7 +276,6 @@ impl Bvh8 {
         tmax: f32,
         out: &mut [Option<Hit>],
     ) {
-        assert_eq!(rays.len(), out.len());
         #[cfg(target_arch = "x86_64")]
         // SAFETY: as `closest`.
         unsafe {
@@ -471,6 +468,19 @@ mod simd {
         [_mm_set1_ps(v.x), _mm_set1_ps(v.y), _mm_set1_ps(v.z)]
     }
 
+    /// A walk's per-ray constants: the box test's setup, and o and d for the leaf test.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn start(o: Vec3, d: Vec3) -> (RaySetup, [__m128; 3], [__m128; 3]) {
+        (setup(o, d), splat3(o), splat3(d))
+    }
+
+    /// A finished walk's result: its closest hit, if it found a triangle.
+    #[inline]
+    fn found(t: f32, best: u32) -> Option<Hit> {
+        (best != u32::MAX).then_some(Hit { t, tri: best })
+    }
+
     /// One step of a closest-hit walk: visits the node or leaf `$code` and picks the next;
     /// `false` when the walk is over. Children are entered nearest first, the rest pushed with
     /// their entry distance and skipped when popped beyond the closest hit `$tmax`.
@@ -583,12 +593,12 @@ mod simd {
         if bvh.nodes.is_empty() {
             return None;
         }
-        let (r, o4, d4) = (setup(o, d), splat3(o), splat3(d));
+        let (r, o4, d4) = start(o, d);
         let mut stack = Stack::new();
         let (sc, st) = stack.ptrs();
         let (mut best, mut code, mut sp) = (u32::MAX, 0u32, 0usize);
         while step!(bvh, r, o4, d4, tmin, tmax, best, code, sp, sc, st) {}
-        (best != u32::MAX).then_some(Hit { t: tmax, tri: best })
+        found(tmax, best)
     }
 
     /// Closest hits of many rays, two walks interleaved step by step so that one ray's memory
@@ -612,42 +622,34 @@ mod simd {
         let (mut sa, mut sb) = (Stack::new(), Stack::new());
         let ((sca, sta), (scb, stb)) = (sa.ptrs(), sb.ptrs());
         let (mut ia, mut ib, mut next) = (0, 1, 2);
-        let (mut ra, mut oa, mut da) = (
-            setup(rays[0].0, rays[0].1),
-            splat3(rays[0].0),
-            splat3(rays[0].1),
-        );
-        let (mut rb, mut ob, mut db) = (
-            setup(rays[1].0, rays[1].1),
-            splat3(rays[1].0),
-            splat3(rays[1].1),
-        );
+        let (mut ra, mut oa, mut da) = start(rays[0].0, rays[0].1);
+        let (mut rb, mut ob, mut db) = start(rays[1].0, rays[1].1);
         let (mut ta, mut ba, mut ca, mut pa) = (tmax, u32::MAX, 0u32, 0usize);
         let (mut tb, mut bb, mut cb, mut pb) = (tmax, u32::MAX, 0u32, 0usize);
         loop {
             let more_a = step!(bvh, ra, oa, da, tmin, ta, ba, ca, pa, sca, sta);
             let more_b = step!(bvh, rb, ob, db, tmin, tb, bb, cb, pb, scb, stb);
             if !more_a {
-                out[ia] = (ba != u32::MAX).then_some(Hit { t: ta, tri: ba });
+                out[ia] = found(ta, ba);
                 if next == n {
                     while step!(bvh, rb, ob, db, tmin, tb, bb, cb, pb, scb, stb) {}
-                    out[ib] = (bb != u32::MAX).then_some(Hit { t: tb, tri: bb });
+                    out[ib] = found(tb, bb);
                     return;
                 }
                 let (o, d) = rays[next];
-                (ia, ra, oa, da) = (next, setup(o, d), splat3(o), splat3(d));
+                (ia, (ra, oa, da)) = (next, start(o, d));
                 (ta, ba, ca, pa) = (tmax, u32::MAX, 0, 0);
                 next += 1;
             }
             if !more_b {
-                out[ib] = (bb != u32::MAX).then_some(Hit { t: tb, tri: bb });
+                out[ib] = found(tb, bb);
                 if next == n {
                     while step!(bvh, ra, oa, da, tmin, ta, ba, ca, pa, sca, sta) {}
-                    out[ia] = (ba != u32::MAX).then_some(Hit { t: ta, tri: ba });
+                    out[ia] = found(ta, ba);
                     return;
                 }
                 let (o, d) = rays[next];
-                (ib, rb, ob, db) = (next, setup(o, d), splat3(o), splat3(d));
+                (ib, (rb, ob, db)) = (next, start(o, d));
                 (tb, bb, cb, pb) = (tmax, u32::MAX, 0, 0);
                 next += 1;
             }
@@ -661,8 +663,7 @@ mod simd {
             return false;
         }
         unsafe {
-            let r = setup(o, d);
-            let (o4, d4) = (splat3(o), splat3(d));
+            let (r, o4, d4) = start(o, d);
             let (tmin8, tmax8) = (_mm256_set1_ps(tmin), _mm256_set1_ps(tmax));
             let mut stack = MaybeUninit::<[u32; STACK]>::uninit();
             let stack = stack.as_mut_ptr() as *mut u32;
