@@ -9,8 +9,8 @@
 //! Owns: the shading estimators and the per-view shading buffers. Must not touch: files, the
 //! filter (see `filter`), tensors.
 
-use crate::accel::Accel;
 use crate::accel::raycast::ViewHits;
+use crate::accel::{Accel, Hit};
 use crate::lightfield::LightField;
 use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
 use fipt_core::rng::Rng;
@@ -47,12 +47,11 @@ impl BakeSamples {
     }
 }
 
-/// L′ seen along a ray from `x`: the light field at the first hit, on the side the ray hits;
-/// 0 on a miss.
+/// L′ seen along the ray `o + t·w` whose closest hit is `hit`: the light field at the hit, on
+/// the side the ray hits; 0 on a miss.
 #[inline]
-pub fn radiance_along(accel: &Accel, lf: &LightField, x: Vec3, w: Vec3) -> Vec3 {
-    let o = x + w * RAY_EPS;
-    match accel.closest(o, w, 0.0, f32::INFINITY) {
+pub fn radiance_at(accel: &Accel, lf: &LightField, o: Vec3, w: Vec3, hit: Option<Hit>) -> Vec3 {
+    match hit {
         Some(h) => lf.query(o + w * h.t, accel.facing_normal(h.tri, w)),
         None => Vec3::ZERO,
     }
@@ -104,12 +103,7 @@ impl Baker<'_> {
         let radiance: Vec<Vec3> = rays
             .iter()
             .zip(&hits)
-            .map(|(&(o, w), h)| match h {
-                Some(h) => self
-                    .lf
-                    .query(o + w * h.t, self.accel.facing_normal(h.tri, w)),
-                None => Vec3::ZERO,
-            })
+            .map(|(&(o, w), &h)| radiance_at(self.accel, self.lf, o, w, h))
             .collect();
         let ld = radiance[..nd].iter().fold(Vec3::ZERO, |a, &l| a + l);
         out[ShadingLayout::LD].copy_from_slice(&(ld / nd.max(1) as f32).to_array());
