@@ -835,6 +835,7 @@ fn build_model(root: &Path) -> (PathBuf, Manifest) {
             seen_front: 10,
             seen_back: 0,
             unexplained: 1.0,
+            unseen: false,
         })
         .collect();
     let samples = (0..200).map(|i| {

@@ -186,6 +186,16 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     assert!(p("mirror_sphere", "m_est") >= 0.5);
     assert!((p("mirror_sphere", "sigma_est") - p("mirror_sphere", "sigma_true")).abs() <= 0.15);
 
+    // The lamp views (train views 1 and 31) look at the wall beside the lamp, lit mostly by the
+    // lamp's face turned to it, which no photo sees. `emitters.fill_unseen` gives that face its
+    // neighbours' radiance; without it the refined shadings there are ~2x too dark and these
+    // views score 18.2 / 16.4 dB k_d (measured, fast config). With it: 25.4 / 26.6 dB.
+    for k in [1, 31] {
+        let v = m["per_view"][k]["kd_psnr"].as_f64().unwrap();
+        eprintln!("lamp view {k}: k_d {v:.2} dB");
+        assert!(v >= 22.0, "lamp view {k}: k_d {v:.2} dB");
+    }
+
     // Emitters against the ground truth per triangle (scene_meta.json's emitter parts).
     let meta = read_json(&scene_dir().join("scene_meta.json"));
     let parts: Vec<Value> = meta["parts"].as_array().unwrap().clone();

@@ -259,6 +259,9 @@ pub struct EmitterSection {
     /// from the reference: on fipt-room with `configs/fast.json` the reference rule also takes
     /// 0.26 m² of the cabinet as an emitter (IoU 0.83); at the reference schedule both agree.
     pub min_unexplained: f32,
+    /// Candidates no photo saw, next to an emitter, take its radiance instead of being dropped
+    /// (false: the reference). See `fipt_bake::emitters`.
+    pub fill_unseen: bool,
 }
 
 impl Default for EmitterSection {
@@ -267,6 +270,7 @@ impl Default for EmitterSection {
             samples_per_triangle: 100,
             threshold: 0.01,
             min_unexplained: 0.5,
+            fill_unseen: true,
         }
     }
 }

@@ -111,6 +111,10 @@ enum Cmd {
         /// Also compute (and cache) the oracle shadings.
         #[arg(long)]
         oracle: bool,
+        /// Also sweep at the base colour and metallic of the model in OUT/maps/train (left by
+        /// `run`), beside its own data term.
+        #[arg(long)]
+        fitted: bool,
         /// Print landscape.json to stdout instead of tables.
         #[arg(long)]
         json: bool,
@@ -373,8 +377,13 @@ fn main() {
             }
             Ok(())
         }),
-        Cmd::Landscape { job, oracle, json } => job.config().and_then(|cfg| {
-            let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, oracle, json)?;
+        Cmd::Landscape {
+            job,
+            oracle,
+            fitted,
+            json,
+        } => job.config().and_then(|cfg| {
+            let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, oracle, fitted, json)?;
             if json {
                 let s = std::fs::read_to_string(job.out.join("landscape.json"))?;
                 println!("{s}");
@@ -396,6 +405,27 @@ fn main() {
                         r.argmin_total,
                         r.render_ratio
                     );
+                }
+                if rows.iter().any(|r| r.fitted.is_some()) {
+                    println!("{name}: the fitted model (data terms x 1e4; at its a and m, σ swept)");
+                    println!(
+                        "part                 data at truth   fit σ   fit m   fit data   argmin at fit a, m   data there"
+                    );
+                    for r in rows {
+                        if let Some(f) = &r.fitted {
+                            let best = f.data.iter().cloned().fold(f64::INFINITY, f64::min);
+                            println!(
+                                "{:<20} {:>13.3}   {:>5.2}   {:>5.2}   {:>8.3}   {:>18.2}   {:>10.3}",
+                                r.name,
+                                r.loss_true * 1e4,
+                                f.sigma,
+                                f.metallic,
+                                f.loss * 1e4,
+                                f.argmin_data,
+                                best * 1e4
+                            );
+                        }
+                    }
                 }
             }
             Ok(())

@@ -469,6 +469,7 @@ mod tests {
                 seen_front: 10,
                 seen_back: 0,
                 unexplained: 1.0,
+                unseen: false,
             })
             .collect();
         let samples = mesh.vertices.iter().map(|&p| (p, Vec3::Y, [1.0, 2.0, 3.0]));

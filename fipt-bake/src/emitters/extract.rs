@@ -9,6 +9,13 @@
 //! only spilled onto it — a smooth PE mask does next to a lamp — and the triangle is rejected.
 //! With `min_unexplained = 0` this is the reference rule.
 //!
+//! A second addition (`fill_unseen`): a candidate no photo saw (a lamp's face turned to the
+//! wall) cannot have its radiance measured, and the reference drops it, so the wall beside it
+//! goes dark in every refined shading. Here such a candidate that shares an edge with an
+//! emitter takes the pixel-weighted mean radiance of its emitting edge neighbours, repeatedly,
+//! so a hidden face of two triangles fills from the faces around it. Its sides are unknown: it
+//! emits from both.
+//!
 //! Owns: per-triangle sampling, the decision and the radiance statistics. Must not touch: the
 //! mask itself (it is queried through a closure, a batch at a time).
 
@@ -38,6 +45,9 @@ pub struct Emitter {
     /// Median over those pixels of the share of the observed radiance that reflection (the
     /// trained BRDF on the baked shadings) leaves unexplained; 1 where no prediction was given.
     pub unexplained: f32,
+    /// Never seen: the radiance is its emitting neighbours' (`ExtractConfig::fill_unseen`).
+    #[serde(default)]
+    pub unseen: bool,
 }
 
 /// One training view as emitter extraction sees it.
@@ -59,6 +69,9 @@ pub struct ExtractConfig {
     pub threshold: f32,
     /// Minimum median unexplained share of a candidate's observed radiance.
     pub min_unexplained: f32,
+    /// Give unseen candidates next to emitters their neighbours' radiance (false: dropped, the
+    /// reference).
+    pub fill_unseen: bool,
     pub seed: u64,
 }
 
@@ -165,9 +178,87 @@ pub fn extract(
             seen_front: sides[0],
             seen_back: sides[1],
             unexplained,
+            unseen: false,
         });
     }
+    if cfg.fill_unseen {
+        let unseen: Vec<usize> = (0..mesh.num_triangles())
+            .filter(|&t| candidate[t] && !seen.contains_key(&(t as u32)))
+            .collect();
+        fill_unseen(mesh, &unseen, &mean_alpha, &mut out);
+    }
     out
+}
+
+/// Appends to `emitters` those of the `unseen` candidates reached through shared edges from an
+/// emitter, each with the pixel-weighted (filled ones: unit-weighted) mean radiance of its
+/// emitting edge neighbours; passes repeat until none is added. Edges are matched by vertex
+/// position, so faces with split vertices connect.
+fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut Vec<Emitter>) {
+    use std::collections::HashMap;
+    if unseen.is_empty() || emitters.is_empty() {
+        return;
+    }
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut vid = |p: Vec3| {
+        let n = ids.len() as u32;
+        *ids.entry(p.to_array().map(f32::to_bits)).or_insert(n)
+    };
+    let mut edges = |t: usize| -> [(u32, u32); 3] {
+        let [a, b, c] = mesh.corners(t).map(&mut vid);
+        [(a, b), (b, c), (c, a)].map(|(x, y)| (x.min(y), x.max(y)))
+    };
+    // Edge → (radiance sum, weight) of the emitters on it.
+    let mut lit: HashMap<(u32, u32), (Vec3, f32)> = HashMap::new();
+    let add = |lit: &mut HashMap<(u32, u32), (Vec3, f32)>, es: [(u32, u32); 3], e: &Emitter| {
+        let w = (e.pixels as f32).max(1.0);
+        for k in es {
+            let v = lit.entry(k).or_insert((Vec3::ZERO, 0.0));
+            v.0 += Vec3::from(e.radiance) * w;
+            v.1 += w;
+        }
+    };
+    for e in emitters.iter() {
+        add(&mut lit, edges(e.triangle as usize), e);
+    }
+    let mut left: Vec<(usize, [(u32, u32); 3])> = unseen.iter().map(|&t| (t, edges(t))).collect();
+    loop {
+        let mut found = Vec::new();
+        left.retain(|&(t, es)| {
+            let (sum, w) = es
+                .iter()
+                .filter_map(|k| lit.get(k))
+                .fold((Vec3::ZERO, 0.0), |(s, w), v| (s + v.0, w + v.1));
+            if w > 0.0 {
+                found.push((t, es, sum / w));
+                false
+            } else {
+                true
+            }
+        });
+        if found.is_empty() {
+            break;
+        }
+        for (t, es, radiance) in found {
+            let [a, b, c] = mesh.corners(t);
+            let e = Emitter {
+                triangle: t as u32,
+                radiance: radiance.to_array(),
+                area: mesh.area(t),
+                normal: mesh.normal(t).to_array(),
+                vertices: [a.to_array(), b.to_array(), c.to_array()],
+                mean_alpha: mean_alpha[t],
+                pixels: 0,
+                seen_front: 0,
+                seen_back: 0,
+                unexplained: 1.0,
+                unseen: true,
+            };
+            add(&mut lit, es, &e);
+            emitters.push(e);
+        }
+    }
+    emitters.sort_by_key(|e| e.triangle);
 }
 
 impl Emitter {
@@ -229,6 +320,7 @@ mod tests {
             samples_per_triangle: 10,
             threshold: 0.01,
             min_unexplained: 0.5,
+            fill_unseen: false,
             seed: 0,
         };
         let view = |reflected| ObservedView {
@@ -263,5 +355,54 @@ mod tests {
         let e = extract(&mesh, &mut alpha, &[view(&little)], &cfg);
         assert_eq!(e.len(), 1);
         assert!((e[0].unexplained - 0.9).abs() < 1e-6);
+    }
+
+    /// A hidden face next to an emitter takes its neighbours' radiance (through edges matched by
+    /// position across split vertices, two steps deep); a masked triangle touching no emitter,
+    /// or touching it at a vertex only, stays dropped; without `fill_unseen` all are dropped.
+    #[test]
+    fn unseen_candidates_fill_from_emitting_neighbours() {
+        // 0: seen emitter; 1: shares 0's edge (1,0,0)-(0,1,0) through its own vertices; 2: shares
+        // an edge with 1 only; 3: shares a vertex with 0 only; 4: isolated; all masked.
+        let mesh = Mesh::parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\n\
+             v 1 0 0\nv 1 1 0\nv 0 1 0\n\
+             v 1 1 0\nv 2 1 0\nv 1 0 0\n\
+             v 0 0 0\nv -1 0 0\nv 0 -1 0\n\
+             v 5 5 0\nv 6 5 0\nv 5 6 0\n\
+             f 1 2 3\nf 4 5 6\nf 7 8 9\nf 10 11 12\nf 13 14 15\n",
+        )
+        .unwrap();
+        let mut alpha = |p: &[[f32; 3]]| vec![1.0; p.len()];
+        let hits = ViewHits {
+            width: 2,
+            height: 1,
+            tri: vec![0, 0],
+            direction: vec![Vec3::NEG_Z; 2],
+            ..Default::default()
+        };
+        let img = [2.0, 4.0, 6.0, 2.0, 4.0, 6.0];
+        let view = ObservedView {
+            hits: &hits,
+            image: &img,
+            reflected: &[],
+        };
+        let mut cfg = ExtractConfig {
+            samples_per_triangle: 4,
+            threshold: 0.01,
+            min_unexplained: 0.5,
+            fill_unseen: false,
+            seed: 0,
+        };
+        let dropped = extract(&mesh, &mut alpha, &[view], &cfg);
+        assert_eq!(dropped.iter().map(|e| e.triangle).collect::<Vec<_>>(), [0]);
+        cfg.fill_unseen = true;
+        let e = extract(&mesh, &mut alpha, &[view], &cfg);
+        assert_eq!(e.iter().map(|e| e.triangle).collect::<Vec<_>>(), [0, 1, 2]);
+        assert!(!e[0].unseen && e[1].unseen && e[2].unseen);
+        for f in &e[1..] {
+            assert_eq!(f.radiance, [2.0, 4.0, 6.0]);
+            assert_eq!((f.pixels, f.observed_sides()), (0, EmitterSides::Both));
+        }
     }
 }

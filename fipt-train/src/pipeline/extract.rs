@@ -44,6 +44,7 @@ pub fn extract_emitters(
             samples_per_triangle: cfg.samples_per_triangle,
             threshold: cfg.threshold,
             min_unexplained: cfg.min_unexplained,
+            fill_unseen: cfg.fill_unseen,
             seed,
         },
     )

@@ -13,6 +13,8 @@ use fipt_core::scene::{Dataset, MapKind};
 use fipt_core::shading::ShadingLayout;
 use glam::Vec3;
 
+use super::predict::ViewMaps;
+
 /// Roughness values swept.
 pub const SWEEP: usize = 50;
 
@@ -33,6 +35,25 @@ pub struct PartLandscape {
     pub argmin_total: f64,
     /// Σ render / Σ photo (all channels) with the true a, σ and m: 1 for unbiased shadings.
     pub render_ratio: f64,
+    /// Mean data term at the true a, σ and m.
+    pub loss_true: f64,
+    /// With a fitted model's maps (`fitted`): the same sweep at its a and m, per pixel.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub fitted: Option<FittedLandscape>,
+}
+
+/// The sweep at a fitted model's base colour and metallic, and the model's own data term: where
+/// the fit stands on these shadings, against where its a and m let σ go.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FittedLandscape {
+    /// Mean fitted σ and m over the part's pixels.
+    pub sigma: f64,
+    pub metallic: f64,
+    /// Mean data term at the fitted a, σ and m.
+    pub loss: f64,
+    /// Mean data term at the fitted a and m and each swept σ.
+    pub data: Vec<f64>,
+    pub argmin_data: f64,
 }
 
 fn srgb(x: f32) -> f64 {
@@ -51,6 +72,7 @@ pub fn landscape(
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
     lambda_d: f32,
+    fitted: Option<&[ViewMaps]>,
 ) -> Vec<PartLandscape> {
     let Some(meta) = ds.meta.as_ref() else {
         return Vec::new();
@@ -74,9 +96,23 @@ pub fn landscape(
             argmin_data: f64::NAN,
             argmin_total: f64::NAN,
             render_ratio: f64::NAN,
+            loss_true: 0.0,
+            fitted: fitted.map(|_| FittedLandscape {
+                sigma: 0.0,
+                metallic: 0.0,
+                loss: 0.0,
+                data: vec![0.0; SWEEP],
+                argmin_data: f64::NAN,
+            }),
         })
         .collect();
-    for ((v, h), sh) in ds.train.views.iter().zip(hits).zip(shadings) {
+    let err = |c: [f32; 3], gt: &[f32]| -> f64 {
+        (0..3)
+            .map(|k| (srgb(c[k]) - srgb(gt[k])).powi(2))
+            .sum::<f64>()
+            / 3.0
+    };
+    for (k, ((v, h), sh)) in ds.train.views.iter().zip(hits).zip(shadings).enumerate() {
         let (Some(base), Some(r), Some(mt)) = (
             v.map(MapKind::BaseColor),
             v.map(MapKind::Roughness),
@@ -105,14 +141,26 @@ pub fn landscape(
             let c = factorised_render(kd.to_array(), ks.to_array(), r.scalar(p), s);
             sums[part].0 += c.iter().map(|&x| x as f64).sum::<f64>();
             sums[part].1 += gt.iter().map(|&x| x as f64).sum::<f64>();
+            row.loss_true += err(c, gt);
             row.pixels += 1;
             row.sigma_true += r.scalar(p) as f64;
             row.m_true += m as f64;
             for (i, &sig) in sweep.iter().enumerate() {
                 let c = factorised_render(kd.to_array(), ks.to_array(), sig, s);
-                let e: f64 = (0..3).map(|k| (srgb(c[k]) - srgb(gt[k])).powi(2)).sum();
-                row.data[i] += e / 3.0;
+                row.data[i] += err(c, gt);
                 row.prior[i] += (lambda_d * ((sig - 1.0).abs() + m)) as f64;
+            }
+            if let (Some(f), Some(maps)) = (row.fitted.as_mut(), fitted) {
+                let mp = &maps[k];
+                let a = Vec3::from_slice(&mp.base[3 * p..3 * p + 3]);
+                let (kd, ks) = reflectances(a, mp.metallic[p]);
+                let (kd, ks) = (kd.to_array(), ks.to_array());
+                f.sigma += mp.sigma[p] as f64;
+                f.metallic += mp.metallic[p] as f64;
+                f.loss += err(factorised_render(kd, ks, mp.sigma[p], s), gt);
+                for (i, &sig) in sweep.iter().enumerate() {
+                    f.data[i] += err(factorised_render(kd, ks, sig, s), gt);
+                }
             }
         }
     }
@@ -123,6 +171,7 @@ pub fn landscape(
     for r in &mut rows {
         let n = r.pixels as f64;
         r.sigma_true /= n;
+        r.loss_true /= n;
         r.m_true /= n;
         for i in 0..SWEEP {
             r.data[i] /= n;
@@ -135,6 +184,15 @@ pub fn landscape(
         };
         r.argmin_data = argmin(&|i| r.data[i]);
         r.argmin_total = argmin(&|i| r.data[i] + r.prior[i]);
+        if let Some(f) = r.fitted.as_mut() {
+            f.sigma /= n;
+            f.metallic /= n;
+            f.loss /= n;
+            f.data.iter_mut().for_each(|d| *d /= n);
+            f.argmin_data = (0..SWEEP)
+                .min_by(|&a, &b| f.data[a].total_cmp(&f.data[b]))
+                .map_or(f64::NAN, |i| r.sigma[i]);
+        }
     }
     rows
 }

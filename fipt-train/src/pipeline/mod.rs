@@ -157,15 +157,24 @@ fn oracle_cached(
 
 /// `fipt-train landscape`: the per-part loss landscape (see `landscape`) of the baked
 /// shadings, of every refined round cached in `out/cache`, and with `oracle` of the oracle
-/// shadings; written to `out/landscape.json` and returned as (shadings name, table).
+/// shadings; written to `out/landscape.json` and returned as (shadings name, table). With
+/// `fitted`, every table also sweeps σ at the base colour and metallic of the model `run` left in
+/// `out/maps/train`, and gives that model's own data term.
 pub fn landscapes(
     scene: &Path,
     out: &Path,
     cfg: &Config,
     oracle: bool,
+    fitted: bool,
     quiet: bool,
 ) -> Result<Vec<(String, Vec<landscape::PartLandscape>)>> {
     let ds = Dataset::load(scene, &load_opts())?;
+    let maps = if fitted {
+        Some(read_train_maps(&ds, out)?)
+    } else {
+        None
+    };
+    let maps = maps.as_deref();
     let accel = Accel::build(&ds.mesh);
     let mut bake_cfg = cfg.bake.clone();
     bake_cfg.seed = cfg.seed;
@@ -173,7 +182,7 @@ pub fn landscapes(
     let lambda = cfg.train.lambda_d;
     let mut tables = vec![(
         "baked".to_string(),
-        landscape::landscape(&ds, &baked.hits, &baked.shadings, lambda),
+        landscape::landscape(&ds, &baked.hits, &baked.shadings, lambda, maps),
     )];
     let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
     for r in 1.. {
@@ -183,7 +192,7 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            landscape::landscape(&ds, &baked.hits, &s, lambda),
+            landscape::landscape(&ds, &baked.hits, &s, lambda, maps),
         ));
     }
     if oracle {
@@ -191,7 +200,7 @@ pub fn landscapes(
         let s = oracle_cached(scene, out, &ds, &accel, &baked, key, cfg, quiet)?;
         tables.push((
             "oracle".to_string(),
-            landscape::landscape(&ds, &baked.hits, &s, lambda),
+            landscape::landscape(&ds, &baked.hits, &s, lambda, maps),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
@@ -841,6 +850,16 @@ pub fn eval_model(scene: &Path, model_dir: &Path, out: &Path) -> Result<EvalRepo
 pub fn eval(scene: &Path, out: &Path) -> Result<EvalReport> {
     let ds = Dataset::load(scene, &load_opts())?;
     let accel = Accel::build(&ds.mesh);
+    let maps = read_train_maps(&ds, out)?;
+    let hits = bake::cast_split(&accel, &ds.mesh, &ds.train);
+    let (metrics, parts) = score(&ds, &hits, &maps);
+    let r = EvalReport { metrics, parts };
+    write_json(&out.join("eval.json"), &r)?;
+    Ok(r)
+}
+
+/// The train views' maps a `run` saved in `out/maps/train`, checked against the scene's sizes.
+fn read_train_maps(ds: &Dataset, out: &Path) -> Result<Vec<ViewMaps>> {
     let dir = out.join("maps").join("train");
     let maps: Vec<ViewMaps> = (0..ds.train.views.len())
         .map(|k| ViewMaps::read(&dir, k))
@@ -863,9 +882,5 @@ pub fn eval(scene: &Path, out: &Path) -> Result<EvalReport> {
             );
         }
     }
-    let hits = bake::cast_split(&accel, &ds.mesh, &ds.train);
-    let (metrics, parts) = score(&ds, &hits, &maps);
-    let r = EvalReport { metrics, parts };
-    write_json(&out.join("eval.json"), &r)?;
-    Ok(r)
+    Ok(maps)
 }
