@@ -10,7 +10,7 @@
 use anyhow::{Context, Result, bail};
 use fipt_bake::integrators::bake::BakeConfig;
 use fipt_bake::integrators::refine::RefineConfig;
-use fipt_core::model::hashgrid::MaxResolution;
+use fipt_core::model::hashgrid::{MaxResolution, ResolutionKeyword};
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{
     BackendKind, EmissionMaskConfig, HashGridConfig, MaterialFieldConfig, TrainConfig,
@@ -185,7 +185,12 @@ impl Default for TrainSection {
             lambda_part: 5e-3,
             lambda_sem: 1e-3,
             sem_partners: 1024,
-            grid: HashGridConfig::default(),
+            // Levels finer than the pixel footprint dropped (the reference keeps all 32); see
+            // the README's departures.
+            grid: HashGridConfig {
+                max_resolution: MaxResolution::Keyword(ResolutionKeyword::Auto),
+                ..HashGridConfig::default()
+            },
             mlp_hidden: 64,
             mlp_layers: 2,
             emission_freqs: 10,
