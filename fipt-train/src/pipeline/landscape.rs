@@ -184,14 +184,13 @@ pub fn landscape(
         };
         r.argmin_data = argmin(&|i| r.data[i]);
         r.argmin_total = argmin(&|i| r.data[i] + r.prior[i]);
-        if let Some(f) = r.fitted.as_mut() {
+        let fitted_argmin = r.fitted.as_ref().map(|f| argmin(&|i| f.data[i]));
+        if let (Some(f), Some(am)) = (r.fitted.as_mut(), fitted_argmin) {
             f.sigma /= n;
             f.metallic /= n;
             f.loss /= n;
             f.data.iter_mut().for_each(|d| *d /= n);
-            f.argmin_data = (0..SWEEP)
-                .min_by(|&a, &b| f.data[a].total_cmp(&f.data[b]))
-                .map_or(f64::NAN, |i| r.sigma[i]);
+            f.argmin_data = am;
         }
     }
     rows
