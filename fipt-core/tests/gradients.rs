@@ -197,6 +197,27 @@ fn loss_gradients() {
         1e-6,
         1e-12,
     );
+    // Logits on both sides of ±z_max (kept 0.05 away from the kinks).
+    let z: Vec<f32> = uniform(2 * n, 0.0, 1.0, 28)
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let mag = if i % 3 == 0 {
+                3.0 + 1.5 * v
+            } else {
+                5.05 + 3.0 * v
+            };
+            if i % 2 == 0 { mag } else { -mag }
+        })
+        .collect();
+    grad_check(
+        "L_z",
+        &[(z, [n, 2])],
+        &|x| loss::logit_bound_loss(x[0].clone(), 5.0, 1e-3),
+        1e-6,
+        1e-6,
+        1e-12,
+    );
     let spec = uniform(3 * n, 0.0, 1.0, 25);
     let seg: Vec<i64> = (0..n as i64).map(|i| i % 3).collect();
     grad_check(

@@ -44,6 +44,8 @@ pub struct RefineSection {
     pub warm_start: bool,
     /// λ_d (Eq. 17) of the fits on refined shadings (None: `train.lambda_d`, the reference).
     pub lambda_d: Option<f32>,
+    /// `train.lambda_d_warmup` of the fits on refined shadings (None: the train section's).
+    pub lambda_d_warmup: Option<f32>,
     /// The path-traced estimators.
     pub paths: RefineConfig,
 }
@@ -56,7 +58,10 @@ impl Default for RefineSection {
         Self {
             rounds: 2,
             warm_start: false,
-            lambda_d: None,
+            // A weaker diffuse prior on refined shadings (the reference keeps 5e-4); see the
+            // README's departures.
+            lambda_d: Some(1e-4),
+            lambda_d_warmup: None,
             paths: RefineConfig {
                 samples: fipt_bake::integrators::bake::BakeSamples {
                     diffuse: 64,
@@ -151,10 +156,17 @@ pub struct TrainSection {
     /// λ_d at the last step as a fraction of `lambda_d`, reached linearly (1: constant, the
     /// reference).
     pub lambda_d_end: f32,
+    /// Share of each fit's steps over which λ_d first rises linearly from 0 (0: none, the
+    /// reference).
+    pub lambda_d_warmup: f32,
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
     pub lambda_part: f32,
+    /// Soft bound on the σ and m logits (`loss::logit_bound_loss`; null: none, the reference).
+    pub logit_bound: Option<f32>,
+    /// Weight of the logit bound's penalty.
+    pub lambda_logit: f32,
     pub lambda_sem: f32,
     pub sem_partners: usize,
     /// The hash grid (one schema with the model's `HashGridConfig`).
@@ -179,10 +191,15 @@ impl Default for TrainSection {
             lr_end: 0.1,
             balance: 0.25,
             lambda_d_end: 1.0,
+            // λ_d rises over the first half of each fit and the σ, m logits are bounded (the
+            // reference has neither); see the README's departures.
+            lambda_d_warmup: 0.5,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
             lambda_part: 5e-3,
+            logit_bound: Some(5.0),
+            lambda_logit: 1e-3,
             lambda_sem: 1e-3,
             sem_partners: 1024,
             // Levels finer than the pixel footprint dropped (the reference keeps all 32); see
@@ -212,6 +229,7 @@ impl TrainSection {
             lr_end: self.lr_end,
             balance: self.balance,
             lambda_d_end: self.lambda_d_end,
+            lambda_d_warmup: self.lambda_d_warmup,
         }
     }
 
@@ -224,6 +242,8 @@ impl TrainSection {
             .with_lambda_e(self.lambda_e)
             .with_lambda_d(self.lambda_d)
             .with_lambda_part(self.lambda_part)
+            .with_logit_bound(self.logit_bound)
+            .with_lambda_logit(self.lambda_logit)
             .with_lambda_sem(self.lambda_sem)
             .with_sem_partners(self.sem_partners)
             .with_material(
@@ -443,6 +463,16 @@ impl Config {
             "must be in [0, 1]",
         )?;
         check(
+            (0.0..=1.0).contains(&t.lambda_d_warmup),
+            "train.lambda_d_warmup",
+            "must be in [0, 1]",
+        )?;
+        check(
+            t.logit_bound.is_none_or(|z| z > 0.0 && z.is_finite()),
+            "train.logit_bound",
+            "must be > 0 (or null)",
+        )?;
+        check(
             (0.0..=1.0).contains(&t.balance),
             "train.balance",
             "must be in [0, 1]",
@@ -451,6 +481,7 @@ impl Config {
             ("train.lambda_e", t.lambda_e),
             ("train.lambda_d", t.lambda_d),
             ("train.lambda_part", t.lambda_part),
+            ("train.lambda_logit", t.lambda_logit),
             ("train.lambda_sem", t.lambda_sem),
         ] {
             check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
@@ -524,6 +555,13 @@ impl Config {
             "levels are 0..5",
         )?;
         check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
+        if let Some(w) = self.refine.lambda_d_warmup {
+            check(
+                (0.0..=1.0).contains(&w),
+                "refine.lambda_d_warmup",
+                "must be in [0, 1]",
+            )?;
+        }
         if let Some(l) = self.refine.lambda_d {
             check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
         }

@@ -35,6 +35,22 @@ pub fn diffuse_loss(sigma: Tensor<2>, metallic: Tensor<2>, weight: f32) -> Tenso
     (sigma.sub_scalar(1.0).abs().mean() + metallic.mean()).mul_scalar(weight)
 }
 
+/// A soft bound on the material head's σ and m logits z (a departure from the reference):
+/// λ_z · mean_pixels Σ_columns max(|z| − z_max, 0)². Without it, the L1 prior of Eq. 17 keeps
+/// pushing the logits of every pixel without highlights towards σ = 1, m = 0 and the sigmoid
+/// saturates (σ = 0.9999 is a logit of 9.4, where the sigmoid passes 1e-4 of the gradient), so
+/// a glossy or metal part whose highlights only show once its base colour is right can no
+/// longer leave the diffuse basin. At z_max = 5 the sigmoid passes 0.0066 and σ and m still reach
+/// [0.027, 0.993] and [0.0067, 0.9933].
+pub fn logit_bound_loss(z: Tensor<2>, z_max: f32, weight: f32) -> Tensor<1> {
+    let [n, _] = z.dims();
+    let over = z.abs().sub_scalar(z_max).clamp_min(0.0);
+    over.powi_scalar(2)
+        .sum()
+        .div_scalar(n as f32)
+        .mul_scalar(weight)
+}
+
 /// Mean of `v` per label (`labels` in 0..n_labels, on the device), weighted by `w` (> 0),
 /// gathered back to every pixel. A label no pixel carries has weight sum 0: the clamp keeps its
 /// (never gathered) mean and its gradient finite.

@@ -77,6 +77,13 @@ pub struct TrainConfig {
     /// λ_p of Eq. 18–19.
     #[config(default = 5e-3)]
     pub lambda_part: f32,
+    /// Bound z_max on the material head's σ and m logits, held by [`loss::logit_bound_loss`]
+    /// (None: unbounded, the reference).
+    #[config(default = "None")]
+    pub logit_bound: Option<f32>,
+    /// Weight of the logit bound's penalty.
+    #[config(default = 1e-3)]
+    pub lambda_logit: f32,
     /// λ_s of Eq. 20.
     #[config(default = 1e-3)]
     pub lambda_sem: f32,
@@ -591,7 +598,8 @@ impl Trainer {
             }
         };
         let t1 = Instant::now();
-        let mat = decode_material(self.model.nets.material.forward(enc.clone()));
+        let raw_mat = self.model.nets.material.forward(enc.clone());
+        let mat = decode_material(raw_mat.clone());
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
         let sh = Shadings::from_packed(px.t.shadings.clone());
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
@@ -599,7 +607,13 @@ impl Trainer {
         let alpha = alpha_from_raw(raw.clone());
         let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
-        let ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
+        let mut ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
+        if let Some(z_max) = self.cfg.logit_bound {
+            // Reported with the prior it bounds (the loss parts keep their five slots).
+            let [n, _] = raw_mat.dims();
+            let z = raw_mat.slice([0..n, 3..5]);
+            ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
+        }
         let lseg = self.seg_loss(&px, mode, &mat, spec);
         let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();
         let parts = Tensor::cat(vec![total.clone(), lc, le, ld, lseg], 0).detach();

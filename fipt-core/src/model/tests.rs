@@ -81,6 +81,18 @@ fn brdf_tensor_matches_scalar() {
     }
 }
 
+/// The logit bound: nothing inside ±z_max, λ·Σ(|z| − z_max)²/N outside, on both signs.
+#[test]
+fn logit_bound_is_zero_inside_and_quadratic_outside() {
+    let d = dev();
+    let z = [0.0f32, 4.9, -4.9, 5.0, 6.0, -7.0];
+    let inside = loss::logit_bound_loss(t2(&z[..4], [2, 2], &d), 5.0, 1e-3).into_scalar::<f32>();
+    assert_eq!(inside, 0.0);
+    let l = loss::logit_bound_loss(t2(&z, [3, 2], &d), 5.0, 1e-3).into_scalar::<f32>();
+    let want = 1e-3 * (1.0 + 4.0) / 3.0;
+    assert!((l - want).abs() < 1e-9, "{l} vs {want}");
+}
+
 #[test]
 fn roughness_weights_are_the_reference_lerp() {
     let d = dev();

@@ -60,6 +60,8 @@ pub struct Schedule {
     /// λ_d (Eq. 17) at the last step as a fraction of its configured value, reached linearly
     /// (1: constant, the reference).
     pub lambda_d_end: f32,
+    /// Share of the steps over which λ_d first rises linearly from 0 (0: none, the reference).
+    pub lambda_d_warmup: f32,
 }
 
 impl Schedule {
@@ -73,6 +75,7 @@ impl Schedule {
             lr_end: 1.0,
             balance: 0.0,
             lambda_d_end: 1.0,
+            lambda_d_warmup: 0.0,
         }
     }
 
@@ -83,7 +86,12 @@ impl Schedule {
         } else {
             0.0
         };
-        1.0 + (self.lambda_d_end - 1.0) * f
+        let ramp = if self.lambda_d_warmup > 0.0 {
+            (f / self.lambda_d_warmup).min(1.0)
+        } else {
+            1.0
+        };
+        ramp * (1.0 + (self.lambda_d_end - 1.0) * f)
     }
 
     /// Steps of a fit over `n` pixels.
@@ -713,6 +721,18 @@ pub(crate) mod tests {
         assert!((s.lr_at(0, 1000) - 1e-3).abs() < 1e-15);
         let mid = s.lr_at(500, 1000) / 1e-3;
         assert!((mid - 0.1f64.powf(500.0 / 999.0)).abs() < 1e-12);
+        // λ_d: 0 at the first step, linear to full at `lambda_d_warmup` of the steps, then the
+        // `lambda_d_end` line.
+        let w = Schedule {
+            lambda_d_warmup: 0.5,
+            lambda_d_end: 0.5,
+            ..r.clone()
+        };
+        assert_eq!(w.lambda_d_at(0, 101), 0.0);
+        assert!((w.lambda_d_at(25, 101) - 0.5 * (1.0 - 0.5 * 0.25)).abs() < 1e-6);
+        assert!((w.lambda_d_at(50, 101) - (1.0 - 0.5 * 0.5)).abs() < 1e-6);
+        assert!((w.lambda_d_at(100, 101) - 0.5).abs() < 1e-6);
+        assert_eq!(r.lambda_d_at(0, 101), 1.0);
     }
 
     /// Uniform draws cover every pixel once per epoch; balanced draws give a 1 %-segment the

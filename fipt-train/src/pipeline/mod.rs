@@ -293,6 +293,13 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         }
     };
     let schedule = cfg.train.schedule();
+    let refined_schedule = fit::Schedule {
+        lambda_d_warmup: cfg
+            .refine
+            .lambda_d_warmup
+            .unwrap_or(schedule.lambda_d_warmup),
+        ..schedule.clone()
+    };
     // The first round not finished in the checkpoint: rounds before it are restored.
     let finished = |r: usize| {
         ck.fit_done(r)
@@ -396,7 +403,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         let warm = r > 0 && cfg.refine.warm_start;
         let run = fit::FitRun {
             mode,
-            schedule: &schedule,
+            schedule: if r == 0 { &schedule } else { &refined_schedule },
             seed: if warm {
                 cfg.seed.wrapping_add(r as u64)
             } else {
