@@ -191,9 +191,9 @@ impl Default for TrainSection {
             lr_end: 0.1,
             balance: 0.25,
             lambda_d_end: 1.0,
-            // λ_d rises over the first half of each fit and the σ, m logits are bounded (the
-            // reference has neither); see the README's departures.
-            lambda_d_warmup: 0.5,
+            // λ_d rises over the first three quarters of each fit and the σ, m logits are
+            // bounded (the reference has neither); see the README's departures.
+            lambda_d_warmup: 0.75,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
