@@ -218,6 +218,23 @@ impl Default for TrainSection {
     }
 }
 
+impl Config {
+    /// The train section as round `r`'s fit uses it: round 0's as written; the refined rounds'
+    /// with `refine.lambda_d` and `refine.lambda_d_warmup` in place of the train section's.
+    pub fn train_for_round(&self, r: usize) -> TrainSection {
+        let mut t = self.train.clone();
+        if r > 0 {
+            if let Some(l) = self.refine.lambda_d {
+                t.lambda_d = l;
+            }
+            if let Some(w) = self.refine.lambda_d_warmup {
+                t.lambda_d_warmup = w;
+            }
+        }
+        t
+    }
+}
+
 impl TrainSection {
     /// The fit's schedule.
     pub fn schedule(&self) -> crate::pipeline::fit::Schedule {

@@ -156,6 +156,13 @@ pub fn decode_material(raw: Tensor<2>) -> Material {
     }
 }
 
+/// The σ and m logits of the material head's raw output [N,5] (the columns [`decode_material`]
+/// turns into σ and m): [N,2].
+pub fn sigma_metallic_logits(raw: Tensor<2>) -> Tensor<2> {
+    let [n, _] = raw.dims();
+    raw.slice([0..n, 3..5])
+}
+
 impl MaterialField {
     /// Material at points in the unit cube (inference: encoding on the host, MLP on `device`).
     pub fn query(&self, x_unit: &[[f32; 3]], device: &Device) -> Material {

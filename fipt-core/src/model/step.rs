@@ -14,7 +14,9 @@
 //! Owns: `TrainConfig`, `Batch`, `Trainer::step`. Must not touch: pixel sampling, data loading.
 
 use super::brdf::reflectances;
-use super::fields::{EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material};
+use super::fields::{
+    EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material, sigma_metallic_logits,
+};
 use super::fipt_model::{FiptModel, ModelSpec, TableFormat};
 use super::gather::{index_tensor, select_int_dev, select_rows_dev};
 use super::hashgrid::{TableAdam, TableGrad};
@@ -610,8 +612,7 @@ impl Trainer {
         let mut ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
         if let Some(z_max) = self.cfg.logit_bound {
             // Reported with the prior it bounds (the loss parts keep their five slots).
-            let [n, _] = raw_mat.dims();
-            let z = raw_mat.slice([0..n, 3..5]);
+            let z = sigma_metallic_logits(raw_mat);
             ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
         }
         let lseg = self.seg_loss(&px, mode, &mat, spec);

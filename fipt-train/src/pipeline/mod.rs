@@ -179,10 +179,12 @@ pub fn landscapes(
     let mut bake_cfg = cfg.bake.clone();
     bake_cfg.seed = cfg.seed;
     let (baked, _) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
-    let lambda = cfg.train.lambda_d;
+    // Each table's prior is the λ_d of the fit on those shadings (round 0's for the baked and
+    // the oracle shadings, round r's for `refine{r}.bin`).
+    let lambda = |r: usize| cfg.train_for_round(r).lambda_d;
     let mut tables = vec![(
         "baked".to_string(),
-        landscape::landscape(&ds, &baked.hits, &baked.shadings, lambda, maps),
+        landscape::landscape(&ds, &baked.hits, &baked.shadings, lambda(0), maps),
     )];
     let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
     for r in 1.. {
@@ -192,7 +194,7 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            landscape::landscape(&ds, &baked.hits, &s, lambda, maps),
+            landscape::landscape(&ds, &baked.hits, &s, lambda(r), maps),
         ));
     }
     if oracle {
@@ -200,7 +202,7 @@ pub fn landscapes(
         let s = oracle_cached(scene, out, &ds, &accel, &baked, key, cfg, quiet)?;
         tables.push((
             "oracle".to_string(),
-            landscape::landscape(&ds, &baked.hits, &s, lambda, maps),
+            landscape::landscape(&ds, &baked.hits, &s, lambda(0), maps),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
@@ -282,23 +284,11 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
     let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
     let footprint = pixels::pixel_footprint(&ds.train, &baked.hits, &scene_box);
     let grid_levels = cfg.train.grid.levels_for(footprint);
-    let model_cfg = cfg.train.model_config(grid_levels, cfg.backend);
-    let lambda_d = cfg.refine.lambda_d.unwrap_or(cfg.train.lambda_d);
-    // Round r's trainer config before its schedule sets the rate and λ_d of each step.
+    // Round r's trainer config (before its schedule sets the rate and λ_d of each step) and
+    // schedule.
     let base_cfg = |r: usize| {
-        if r == 0 {
-            model_cfg.clone()
-        } else {
-            model_cfg.clone().with_lambda_d(lambda_d)
-        }
-    };
-    let schedule = cfg.train.schedule();
-    let refined_schedule = fit::Schedule {
-        lambda_d_warmup: cfg
-            .refine
-            .lambda_d_warmup
-            .unwrap_or(schedule.lambda_d_warmup),
-        ..schedule.clone()
+        cfg.train_for_round(r)
+            .model_config(grid_levels, cfg.backend)
     };
     // The first round not finished in the checkpoint: rounds before it are restored.
     let finished = |r: usize| {
@@ -403,7 +393,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         let warm = r > 0 && cfg.refine.warm_start;
         let run = fit::FitRun {
             mode,
-            schedule: if r == 0 { &schedule } else { &refined_schedule },
+            schedule: &cfg.train_for_round(r).schedule(),
             seed: if warm {
                 cfg.seed.wrapping_add(r as u64)
             } else {
@@ -439,7 +429,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             }
             None if warm => {
                 let (mut tr, _) = prev.take().context("no previous round")?;
-                tr.cfg.lambda_d = lambda_d;
+                tr.cfg.lambda_d = base.lambda_d;
                 (tr, None)
             }
             None => (
