@@ -823,19 +823,11 @@ fn build_model(root: &Path) -> (PathBuf, Manifest) {
     let device = burn::tensor::Device::flex();
     let model = FiptModel::init(spec, &device, 5);
     let mesh = Mesh::parse_obj(TETRA).unwrap();
-    let emitters: Vec<Emitter> = (0..2u32)
+    let emitters: Vec<Emitter> = (0..2usize)
         .map(|t| Emitter {
-            triangle: t,
-            radiance: [5.0, 4.0, 3.0],
-            area: 0.5,
-            normal: [0.0, 0.0, -1.0],
-            vertices: [[0.0; 3]; 3],
-            mean_alpha: 0.9,
             pixels: 10,
             seen_front: 10,
-            seen_back: 0,
-            unexplained: 1.0,
-            unseen: false,
+            ..Emitter::on_triangle(&mesh, t, [5.0, 4.0, 3.0])
         })
         .collect();
     let samples = (0..200).map(|i| {

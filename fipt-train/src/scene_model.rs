@@ -457,19 +457,11 @@ mod tests {
         }
         let room = fipt_core::scene::procedural::room(Vec3::new(4.0, 2.5, 3.0), 1);
         let mesh = room.mesh;
-        let em = (0..2u32)
+        let em = (0..2usize)
             .map(|t| Emitter {
-                triangle: t,
-                radiance: [5.0, 4.0, 3.0],
-                area: 0.1,
-                normal: [0.0, -1.0, 0.0],
-                vertices: [[0.0; 3]; 3],
-                mean_alpha: 0.9,
                 pixels: 10,
                 seen_front: 10,
-                seen_back: 0,
-                unexplained: 1.0,
-                unseen: false,
+                ..Emitter::on_triangle(&mesh, t, [5.0, 4.0, 3.0])
             })
             .collect();
         let samples = mesh.vertices.iter().map(|&p| (p, Vec3::Y, [1.0, 2.0, 3.0]));

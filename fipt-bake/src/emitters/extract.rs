@@ -240,19 +240,10 @@ fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut
             break;
         }
         for (t, es, radiance) in found {
-            let [a, b, c] = mesh.corners(t);
             let e = Emitter {
-                triangle: t as u32,
-                radiance: radiance.to_array(),
-                area: mesh.area(t),
-                normal: mesh.normal(t).to_array(),
-                vertices: [a.to_array(), b.to_array(), c.to_array()],
                 mean_alpha: mean_alpha[t],
-                pixels: 0,
-                seen_front: 0,
-                seen_back: 0,
-                unexplained: 1.0,
                 unseen: true,
+                ..Emitter::on_triangle(mesh, t, radiance.to_array())
             };
             add(&mut lit, es, &e);
             emitters.push(e);
@@ -262,6 +253,26 @@ fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut
 }
 
 impl Emitter {
+    /// Triangle `t` of `mesh` emitting `radiance`, with its geometry from the mesh and the
+    /// extraction's diagnostics neutral (mask α 1, seen from no pixel, nothing explained): an
+    /// emitter placed by hand, or one that extraction fills in.
+    pub fn on_triangle(mesh: &Mesh, t: usize, radiance: [f32; 3]) -> Self {
+        let [a, b, c] = mesh.corners(t);
+        Self {
+            triangle: t as u32,
+            radiance,
+            area: mesh.area(t),
+            normal: mesh.normal(t).to_array(),
+            vertices: [a.to_array(), b.to_array(), c.to_array()],
+            mean_alpha: 1.0,
+            pixels: 0,
+            seen_front: 0,
+            seen_back: 0,
+            unexplained: 1.0,
+            unseen: false,
+        }
+    }
+
     /// The sides it emits from as observed: both where the photos saw both sides (or neither),
     /// else the one they saw.
     pub fn observed_sides(&self) -> EmitterSides {
