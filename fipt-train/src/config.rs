@@ -474,25 +474,25 @@ impl Config {
             "train.lr_end",
             "must be in (0, 1]",
         )?;
-        check(
-            (0.0..=1.0).contains(&t.lambda_d_end),
-            "train.lambda_d_end",
-            "must be in [0, 1]",
-        )?;
-        check(
-            (0.0..=1.0).contains(&t.lambda_d_warmup),
-            "train.lambda_d_warmup",
-            "must be in [0, 1]",
-        )?;
+        // Shares and fractions (the refined rounds' warm-up override with the train section's).
+        let warmup_override = self
+            .refine
+            .lambda_d_warmup
+            .map(|w| ("refine.lambda_d_warmup", w));
+        for (k, v) in [
+            ("train.lambda_d_end", t.lambda_d_end),
+            ("train.lambda_d_warmup", t.lambda_d_warmup),
+            ("train.balance", t.balance),
+        ]
+        .into_iter()
+        .chain(warmup_override)
+        {
+            check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
+        }
         check(
             t.logit_bound.is_none_or(|z| z > 0.0 && z.is_finite()),
             "train.logit_bound",
             "must be > 0 (or null)",
-        )?;
-        check(
-            (0.0..=1.0).contains(&t.balance),
-            "train.balance",
-            "must be in [0, 1]",
         )?;
         for (k, v) in [
             ("train.lambda_e", t.lambda_e),
@@ -572,13 +572,6 @@ impl Config {
             "levels are 0..5",
         )?;
         check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
-        if let Some(w) = self.refine.lambda_d_warmup {
-            check(
-                (0.0..=1.0).contains(&w),
-                "refine.lambda_d_warmup",
-                "must be in [0, 1]",
-            )?;
-        }
         if let Some(l) = self.refine.lambda_d {
             check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
         }
