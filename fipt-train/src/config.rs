@@ -3,8 +3,9 @@
 //!
 //! Owns: the config schema, its defaults (the reference's constants, except the named
 //! departures: `emitters.min_unexplained`, the fit's schedule keys `train.min_steps`,
-//! `train.lr`/`lr_end`, `train.balance`, and the refinement's `light_samples` and sample
-//! counts; the README gives the measurement behind each) and validation. Must not touch: what
+//! `train.lr`/`lr_end`, `train.balance`, the basin hop `train.hop`, and the refinement's
+//! `light_samples` and sample counts; the README gives the measurement behind each) and
+//! validation. Must not touch: what
 //! the stages do with it.
 
 use anyhow::{Context, Result, bail};
@@ -179,6 +180,8 @@ pub struct TrainSection {
     /// Where the hash grid lives (`auto`: on the device for wgpu, on the host for the CPU
     /// backends).
     pub grid_place: GridPlace,
+    /// The basin hop on σ after every fit (`pipeline::hop`; null: none, the reference).
+    pub hop: Option<crate::pipeline::hop::HopConfig>,
 }
 
 impl Default for TrainSection {
@@ -214,6 +217,7 @@ impl Default for TrainSection {
             emission_depth: 6,
             emission_width: 128,
             grid_place: GridPlace::Auto,
+            hop: Some(crate::pipeline::hop::HopConfig::default()),
         }
     }
 }
@@ -504,6 +508,21 @@ impl Config {
             check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
         }
         check(t.sem_partners >= 1, "train.sem_partners", "must be >= 1")?;
+        if let Some(h) = &t.hop {
+            for (k, v) in [
+                ("train.hop.gain", h.gain),
+                ("train.hop.min_move", h.min_move),
+                ("train.hop.steps", h.steps),
+            ] {
+                check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
+            }
+            check(
+                h.pull >= 0.0 && h.pull.is_finite(),
+                "train.hop.pull",
+                "must be >= 0",
+            )?;
+            check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;
+        }
         let g = &t.grid;
         // A training table of at least 2^8 entries and a base of at least 2 cells; the rest
         // of the grid's ranges are `HashGridConfig::check`'s (also applied to saved models).
@@ -606,6 +625,17 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("emitters.threshold"), "{e}");
+        let e = Config::from_json(r#"{"train": {"hop": {"min_move": 1.5}}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.hop.min_move"), "{e}");
+        let e = Config::from_json(r#"{"train": {"hop": {"gian": 0.1}}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.hop") && e.contains("gian"), "{e}");
+        // null turns the hop off (the reference).
+        let off = Config::from_json(r#"{"train": {"hop": null}}"#).unwrap();
+        assert!(off.train.hop.is_none());
         let e = Config::from_json(r#"{"backend": "opencl"}"#)
             .unwrap_err()
             .to_string();

@@ -152,6 +152,9 @@ pub struct RoundReport {
     /// The fit's loss (every step's total), averaged into at most 200 bins: (step, loss).
     #[serde(default)]
     pub loss_curve: Vec<(u64, f32)>,
+    /// The basin hop after the fit (`train.hop`), where one ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hop: Option<crate::pipeline::hop::HopReport>,
 }
 
 /// `v` averaged into at most `bins` consecutive bins: (first index of the bin, mean).
@@ -190,6 +193,7 @@ impl RoundReport {
             refine_paths,
             train_s,
             loss_curve: binned(&log.step_total, 200),
+            hop: log.hop.clone(),
         }
     }
 }

@@ -20,6 +20,16 @@ pub fn tonemap(x: Tensor<2>) -> Tensor<2> {
     pw.mask_where(low, lin)
 }
 
+/// `tonemap` of one value on the host, in f64 (for host evaluations of Eq. 15).
+pub fn tonemap_host(x: f32) -> f64 {
+    let x = x as f64;
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
 /// Eq. 15: L_c = mean (Γ(C) − Γ(I))².
 pub fn color_loss(c: Tensor<2>, gt: Tensor<2>) -> Tensor<1> {
     (tonemap(c) - tonemap(gt)).powi_scalar(2).mean()
@@ -48,6 +58,19 @@ pub fn logit_bound_loss(z: Tensor<2>, z_max: f32, weight: f32) -> Tensor<1> {
     over.powi_scalar(2)
         .sum()
         .div_scalar(n as f32)
+        .mul_scalar(weight)
+}
+
+/// The σ pull of a basin hop (a departure from the reference, `train.hop`):
+/// λ · mean_pixels w·(σ − t)², with a target t and a weight w ∈ {0, 1} per pixel [N,1].
+pub fn sigma_pull_loss(
+    sigma: Tensor<2>,
+    target: Tensor<2>,
+    w: Tensor<2>,
+    weight: f32,
+) -> Tensor<1> {
+    ((sigma - target).powi_scalar(2) * w)
+        .mean()
         .mul_scalar(weight)
 }
 

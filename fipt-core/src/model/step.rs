@@ -321,6 +321,7 @@ impl<'a> Pixels<'a> {
 }
 
 /// How the hash table is optimised.
+#[derive(Clone)]
 enum GridOpt {
     /// The fused host op's sparse table gradient and Adam.
     Host { grad: TableGrad, adam: TableAdam },
@@ -328,7 +329,19 @@ enum GridOpt {
     Device { optim: ModuleOptimizer },
 }
 
-/// The fit: a `FiptModel` on an autodiff device and its optimisers.
+/// A pull of the roughness towards per-segment targets, added to the loss while it is set
+/// (`Trainer::pull`): the first phase of a basin hop (`loss::sigma_pull_loss`, reported with
+/// the prior). Segment ids are the batch's own (`Batch::seg`); pixels of other segments are
+/// not pulled.
+#[derive(Clone, Debug, Default)]
+pub struct SigmaPull {
+    pub weight: f32,
+    pub target: HashMap<i32, f32>,
+}
+
+/// The fit: a `FiptModel` on an autodiff device and its optimisers. A clone is an independent
+/// snapshot (model, optimiser states, step count) to return to.
+#[derive(Clone)]
 pub struct Trainer {
     pub cfg: TrainConfig,
     /// Autodiff device.
@@ -344,6 +357,8 @@ pub struct Trainer {
     pub steps: u64,
     /// Accumulated time per phase of `step`.
     pub profile: StepProfile,
+    /// A σ pull added to the loss of every step while set (None: the objective of Eq. 15–20).
+    pub pull: Option<SigmaPull>,
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps. On a device that runs
@@ -455,6 +470,7 @@ impl Trainer {
             seed,
             steps: 0,
             profile: StepProfile::default(),
+            pull: None,
         }
     }
 
@@ -614,6 +630,18 @@ impl Trainer {
             // Reported with the prior it bounds (the loss parts keep their five slots).
             let z = sigma_metallic_logits(raw_mat);
             ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
+        }
+        if let Some(pull) = &self.pull {
+            let b = px
+                .host
+                .expect("the σ pull needs the batch on the host (StepInput::Device { host })");
+            let (t, w): (Vec<f32>, Vec<f32>) = b
+                .seg
+                .iter()
+                .map(|s| pull.target.get(s).map_or((0.0, 0.0), |&t| (t, 1.0)))
+                .unzip();
+            let (t, w) = (upload2(t, [n, 1], &dev), upload2(w, [n, 1], &dev));
+            ld = ld + loss::sigma_pull_loss(mat.sigma.clone(), t, w, pull.weight);
         }
         let lseg = self.seg_loss(&px, mode, &mat, spec);
         let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();

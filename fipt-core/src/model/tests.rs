@@ -209,6 +209,8 @@ fn tonemap_is_the_srgb_curve() {
             1.055 * xi.powf(1.0 / 2.4) - 0.055
         };
         assert!((yi - want).abs() < 1e-5, "{xi}: {yi} vs {want}");
+        // The host copy is the same curve.
+        assert!((loss::tonemap_host(*xi) - want as f64).abs() < 1e-6, "{xi}");
     }
 }
 

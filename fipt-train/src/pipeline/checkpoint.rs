@@ -218,6 +218,12 @@ impl Checkpoints {
         step_dirs(&self.round_dir(round)).into_iter().last()
     }
 
+    /// Whether `round`'s saved fit has also run its basin hop (`TrainLog::hop`).
+    pub fn hop_done(&self, round: usize) -> bool {
+        self.newest(round)
+            .is_some_and(|(_, d)| FitProgress::load_log(&d).is_ok_and(|l| l.hop.is_some()))
+    }
+
     /// Whether `round`'s fit has a saved state that has run every step.
     pub fn fit_done(&self, round: usize) -> bool {
         self.newest(round)
@@ -281,11 +287,28 @@ impl Checkpoints {
     /// Saves the state of `round`'s fit after `p.step` steps as a new step folder (staged
     /// under a `.tmp` name, then renamed), then removes the older ones.
     pub fn save(&self, round: usize, tr: &Trainer, p: &mut FitProgress) -> Result<()> {
+        self.save_step(round, tr, p, false)
+    }
+
+    /// `save`, replacing a folder already saved at this step: for a fit whose state changed
+    /// after its last step (the basin hop, `pipeline::hop`). Killed between the removal of the
+    /// old folder and the rename of the new one, the round's fit restarts.
+    pub fn save_again(&self, round: usize, tr: &Trainer, p: &mut FitProgress) -> Result<()> {
+        self.save_step(round, tr, p, true)
+    }
+
+    fn save_step(
+        &self,
+        round: usize,
+        tr: &Trainer,
+        p: &mut FitProgress,
+        replace: bool,
+    ) -> Result<()> {
         p.settle();
         let rd = self.round_dir(round);
         let name = format!("step{:07}", p.step);
         let fin = rd.join(&name);
-        if fin.exists() {
+        if fin.exists() && !replace {
             return Ok(());
         }
         let tmp = rd.join(format!("{name}.tmp"));
@@ -294,6 +317,9 @@ impl Checkpoints {
             .with_context(|| format!("{}: cannot create", tmp.display()))?;
         tr.save_state(&tmp).map_err(anyhow::Error::msg)?;
         p.save(&tmp)?;
+        if fin.exists() {
+            remove_dir_aside(&fin);
+        }
         std::fs::rename(&tmp, &fin)
             .with_context(|| format!("{}: cannot rename to {}", tmp.display(), fin.display()))?;
         for (s, d) in step_dirs(&rd) {

@@ -35,6 +35,9 @@ pub fn reflected(tr: &Trainer, store: &PixelStore, pixels_per_view: &[usize]) ->
 pub struct TrainLog {
     pub epochs: Vec<LossParts>,
     pub step_total: Vec<f32>,
+    /// The basin hop after the fit (`hop`), once it has run; None before, or without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hop: Option<super::hop::HopReport>,
 }
 
 /// How long a fit runs and what each step sees.
@@ -540,7 +543,8 @@ pub fn step_entries(
 ) -> StepLoss {
     match ds {
         Some(ds) => {
-            let host = (mode == SegMode::Semantic).then(|| store.batch(idx));
+            // The semantic loss and a σ pull read the batch's labels on the host.
+            let host = (mode == SegMode::Semantic || tr.pull.is_some()).then(|| store.batch(idx));
             let input = StepInput::Device {
                 store: ds,
                 idx,

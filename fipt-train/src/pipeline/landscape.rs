@@ -9,6 +9,7 @@
 
 use fipt_bake::ViewHits;
 use fipt_core::brdf::{factorised_render, reflectances};
+use fipt_core::model::loss::tonemap_host as srgb;
 use fipt_core::scene::{Dataset, MapKind};
 use fipt_core::shading::ShadingLayout;
 use glam::Vec3;
@@ -54,15 +55,6 @@ pub struct FittedLandscape {
     /// Mean data term at the fitted a and m and each swept σ.
     pub data: Vec<f64>,
     pub argmin_data: f64,
-}
-
-fn srgb(x: f32) -> f64 {
-    let x = x as f64;
-    if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
 }
 
 /// The landscape of every part of a scene with ground truth (`scene_meta.json` and the

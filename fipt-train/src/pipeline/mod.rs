@@ -2,7 +2,8 @@
 //!
 //! - `bake`: L′ and the baked shadings (§4.2, Eq. 9), through the shading cache;
 //! - `pixels`: the training pixels as one store;
-//! - `fit`: the material field and emission mask (§4.5, Eq. 12, 15–20);
+//! - `fit`: the material field and emission mask (§4.5, Eq. 12, 15–20); `hop`: a basin hop on
+//!   the roughness after each fit (a departure, `train.hop`);
 //! - `extract`: emitters from the emission mask (§4.4, Eq. 13);
 //! - `predict`: per-view maps of the fitted model; `evaluate`: scores against ground truth.
 //!
@@ -21,6 +22,7 @@ pub mod checkpoint;
 pub mod evaluate;
 pub mod extract;
 pub mod fit;
+pub mod hop;
 pub mod landscape;
 pub mod pixels;
 pub mod predict;
@@ -293,6 +295,7 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
     // The first round not finished in the checkpoint: rounds before it are restored.
     let finished = |r: usize| {
         ck.fit_done(r)
+            && (cfg.train_for_round(r).hop.is_none() || ck.hop_done(r))
             && (r == rounds_total || ck.has(r, ROUND_REPORT))
             && ck.has(0, ROUND_EMITTERS)
     };
@@ -457,6 +460,28 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             }
             Ok(())
         })?;
+        // The basin hop, once per fit (a fit restored after its hop is not hopped again).
+        let round_train = cfg.train_for_round(r);
+        let tr = match &round_train.hop {
+            Some(h) if p.log.hop.is_none() => {
+                let plan = hop::HopPlan {
+                    cfg: h,
+                    mode,
+                    schedule: run.schedule,
+                    lambda_d: base.lambda_d
+                        * run.schedule.lambda_d_at(p.total.saturating_sub(1), p.total),
+                    seed: cfg.seed ^ ((r as u64) << 40),
+                    show_progress: !quiet,
+                };
+                let (tr, rep) = hop::hop(tr, st, &plan);
+                p.log.hop = Some(rep);
+                // Over the state saved at the fit's last step: a resumed run restores the
+                // hopped model and its report, and does not hop again.
+                ck.save_again(r, &tr, &mut p)?;
+                tr
+            }
+            _ => tr,
+        };
         ck.save(r, &tr, &mut p)?;
         times.checkpoint_s += ck_s;
         train_s = lap(&mut t);

@@ -1,0 +1,515 @@
+//! Basin hopping on the roughness, per segment (a departure from the reference, `train.hop`):
+//! after a fit, the fit's own objective is swept over one common σ per segment at the fitted
+//! base colour and metallic; where a σ far from the fitted one scores clearly lower, the fit
+//! continues with σ pulled there (`SigmaPull`), then released (trained as in the fit's last
+//! step), and the hopped model is kept only if the hopped segments' objective fell. The other
+//! segments see only more steps of the same fit; their objective is not part of the decision:
+//! on fipt-room it moves by ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1,
+//! objective ~0.4 per pixel against ~1e-3 elsewhere) would decide it alone.
+//!
+//! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
+//! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
+//! is chosen in the first steps of a fit. A part can then sit at σ ≈ 0.95 while its own data and
+//! prior favour σ ≈ 0.3 by 15 % (the README measures it); no amount of descent leaves such a
+//! plateau, a hop to where the objective already says it should be does.
+//!
+//! The objective evaluated is the one the fit minimises, Eq. 15 + 17: the tone-mapped MSE of the
+//! composite (1 − α)·C + α·I and λ_d·(|σ − 1| + m) at the fit's final λ_d, on up to
+//! `pixels` pixels per segment (evenly strided over the store), weighted by segment size. The
+//! segmentation loss and the logit bound are left out (a common σ per segment leaves the first at
+//! its minimum).
+//!
+//! Owns: the sweep, the hop's two phases and its decision. Must not touch: the fit's schedule,
+//! the model maths.
+
+use super::fit::{Schedule, step_entries};
+use super::landscape::SWEEP;
+use super::pixels::PixelStore;
+use crate::progress::progress_bar;
+use fipt_core::brdf::{factorised_render, reflectances};
+use fipt_core::model::loss::tonemap_host as tonemap;
+use fipt_core::model::step::{DeviceStore, SegMode, SigmaPull};
+use fipt_core::model::{FiptModel, Trainer};
+use fipt_core::rng::Rng;
+use fipt_core::shading::ShadingLayout;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// The hop's keys (`train.hop`; null: no hop, the reference).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HopConfig {
+    /// Relative drop of a segment's objective at the sweep's best σ that calls for a hop.
+    pub gain: f32,
+    /// Smallest |best σ − mean fitted σ| that calls for a hop.
+    pub min_move: f32,
+    /// Steps of each phase (pull, then release) as a share of the fit's steps.
+    pub steps: f32,
+    /// Weight of the pull (`loss::sigma_pull_loss`).
+    pub pull: f32,
+    /// Pixels per segment in the sweep and the decision.
+    pub pixels: usize,
+}
+
+impl Default for HopConfig {
+    fn default() -> Self {
+        Self {
+            gain: 0.05,
+            min_move: 0.25,
+            steps: 0.15,
+            pull: 1e-2,
+            pixels: 4096,
+        }
+    }
+}
+
+/// A segment the sweep sent hopping.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HopCandidate {
+    /// Segment id (part or semantic label).
+    pub segment: i32,
+    /// Its pixels in the store.
+    pub pixels: usize,
+    /// Mean fitted σ before the hop, the target, and the mean σ after it.
+    pub sigma: f64,
+    pub target: f64,
+    pub sigma_after: f64,
+    /// The segment's objective at the fit, at the target σ (fitted a and m) and after the hop.
+    pub objective: f64,
+    pub objective_target: f64,
+    pub objective_after: f64,
+}
+
+/// A segment's objective before and after a hop.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SegmentObjective {
+    pub segment: i32,
+    pub pixels: usize,
+    pub before: f64,
+    pub after: f64,
+}
+
+/// What a hop did: the candidates, whether the hopped model was kept (the candidates'
+/// size-weighted objective fell), and for the record the whole objective (every segment,
+/// size-weighted) before and after, and each segment's.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct HopReport {
+    pub candidates: Vec<HopCandidate>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub segments: Vec<SegmentObjective>,
+    pub objective_before: f64,
+    pub objective_after: Option<f64>,
+    pub accepted: bool,
+    /// Steps run (both phases).
+    pub steps: usize,
+}
+
+/// The swept σ values, as the landscape's.
+fn sweep() -> Vec<f32> {
+    (0..SWEEP)
+        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
+        .collect()
+}
+
+/// One segment's pixels in the evaluation: its id, its size in the store, the entries used.
+struct SegmentSample {
+    id: i32,
+    size: usize,
+    idx: Vec<u32>,
+}
+
+/// Up to `per` entries of every segment, evenly strided.
+fn sample(store: &PixelStore, per: usize) -> Vec<SegmentSample> {
+    let mut by: BTreeMap<i32, Vec<u32>> = BTreeMap::new();
+    for (i, &s) in store.pixels.seg.iter().enumerate() {
+        by.entry(s).or_default().push(i as u32);
+    }
+    by.into_iter()
+        .map(|(id, all)| {
+            let size = all.len();
+            let take = size.min(per.max(1));
+            let idx = (0..take).map(|k| all[k * size / take]).collect();
+            SegmentSample { id, size, idx }
+        })
+        .collect()
+}
+
+/// A segment's objective at the model, and over the sweep.
+struct SegmentEval {
+    sigma: f64,
+    own: f64,
+    /// At each swept σ, the least objective over the base-colour scales (`SCALES`).
+    sweep: Vec<f64>,
+}
+
+/// Scales of the fitted base colour tried at each swept σ: 0.5, 0.55, …, 1.5. A part fitted in
+/// the wrong σ basin has a base colour that absorbed its highlights (a rough fit is brighter), so
+/// σ alone at that colour under-rates the other basin; the profile over one common scale per
+/// segment does not.
+const SCALES: usize = 21;
+
+fn scale(j: usize) -> f32 {
+    0.5 + j as f32 / (SCALES - 1) as f32
+}
+
+/// Eq. 15 + 17 per segment of `samples` at the model's a, σ, m and α, and (`with_sweep`) its
+/// profile over σ: at each swept σ, the least over the scales of the fitted base colour.
+fn evaluate(
+    model: &FiptModel,
+    store: &PixelStore,
+    samples: &[SegmentSample],
+    lambda_d: f32,
+    with_sweep: bool,
+) -> Vec<SegmentEval> {
+    use rayon::prelude::*;
+    let sig = sweep();
+    let scales = if with_sweep { SCALES } else { 0 };
+    samples
+        .iter()
+        .map(|s| {
+            let b = store.batch(&s.idx);
+            let mat = model.material(&b.x_unit);
+            let alpha = model.alpha(&b.x_world);
+            let n = s.idx.len() as f64;
+            // One pixel's objective at base colour a, roughness σ and its own m.
+            let term = |i: usize, a: glam::Vec3, sigma: f32| -> f64 {
+                let m = mat.metallic[i];
+                let (kd, ks) = reflectances(a, m);
+                let sh = ShadingLayout::pixel(&b.shadings, i);
+                let gt = &b.gt[3 * i..3 * i + 3];
+                let al = alpha[i];
+                let c = factorised_render(kd.to_array(), ks.to_array(), sigma, sh);
+                let data = (0..3)
+                    .map(|k| (tonemap((1.0 - al) * c[k] + al * gt[k]) - tonemap(gt[k])).powi(2))
+                    .sum::<f64>()
+                    / 3.0;
+                data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
+            };
+            let base = |i: usize| glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
+            // Sums over pixels: σ, own objective, and the (σ, scale) grid.
+            let zero = || (0.0, 0.0, vec![0.0; SWEEP * scales]);
+            let (sum_sigma, own, grid) = (0..s.idx.len())
+                .into_par_iter()
+                .fold(zero, |(ss, o, mut g), i| {
+                    for (k, &sg) in sig
+                        .iter()
+                        .enumerate()
+                        .take(if scales > 0 { SWEEP } else { 0 })
+                    {
+                        for j in 0..scales {
+                            let a = (base(i) * scale(j)).min(glam::Vec3::ONE);
+                            g[k * scales + j] += term(i, a, sg);
+                        }
+                    }
+                    (
+                        ss + mat.sigma[i] as f64,
+                        o + term(i, base(i), mat.sigma[i]),
+                        g,
+                    )
+                })
+                .reduce(zero, |(s1, o1, g1), (s2, o2, g2)| {
+                    let g = g1.iter().zip(&g2).map(|(x, y)| x + y).collect();
+                    (s1 + s2, o1 + o2, g)
+                });
+            SegmentEval {
+                sigma: sum_sigma / n,
+                own: own / n,
+                sweep: (0..if scales > 0 { SWEEP } else { 0 })
+                    .map(|k| {
+                        grid[k * scales..(k + 1) * scales]
+                            .iter()
+                            .fold(f64::INFINITY, |a, &b| a.min(b))
+                            / n
+                    })
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+/// The objective over all segments, each weighted by its size.
+fn whole(samples: &[SegmentSample], evals: &[SegmentEval]) -> f64 {
+    let n: usize = samples.iter().map(|s| s.size).sum();
+    samples
+        .iter()
+        .zip(evals)
+        .map(|(s, e)| e.own * s.size as f64)
+        .sum::<f64>()
+        / n.max(1) as f64
+}
+
+/// The segments to hop and their targets: where the sweep's best σ lies at least `min_move`
+/// from the fitted mean and lowers the segment's objective by at least `gain` of it.
+fn candidates(
+    cfg: &HopConfig,
+    samples: &[SegmentSample],
+    evals: &[SegmentEval],
+) -> Vec<HopCandidate> {
+    let sig = sweep();
+    samples
+        .iter()
+        .zip(evals)
+        .filter_map(|(s, e)| {
+            let (j, best) = e
+                .sweep
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.total_cmp(b.1))?;
+            let target = sig[j] as f64;
+            let hop = (target - e.sigma).abs() >= cfg.min_move as f64
+                && e.own - best >= cfg.gain as f64 * e.own;
+            hop.then_some(HopCandidate {
+                segment: s.id,
+                pixels: s.size,
+                sigma: e.sigma,
+                target,
+                sigma_after: e.sigma,
+                objective: e.own,
+                objective_target: *best,
+                objective_after: e.own,
+            })
+        })
+        .collect()
+}
+
+/// What a hop needs of its fit besides the trainer and the pixels.
+pub struct HopPlan<'a> {
+    pub cfg: &'a HopConfig,
+    pub mode: SegMode,
+    pub schedule: &'a Schedule,
+    /// The fit's λ_d at its last step (the prior the objective holds).
+    pub lambda_d: f32,
+    pub seed: u64,
+    pub show_progress: bool,
+}
+
+/// Tries a hop after a finished fit on `store`: returns the trainer to keep (the hopped one, or
+/// `tr` as it came) and what happened. Without segments (`SegMode::None`) nothing hops.
+pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopReport) {
+    if plan.mode == SegMode::None || store.is_empty() {
+        return (tr, HopReport::default());
+    }
+    let samples = sample(store, plan.cfg.pixels);
+    let before = evaluate(&tr.model, store, &samples, plan.lambda_d, true);
+    let mut report = HopReport {
+        candidates: candidates(plan.cfg, &samples, &before),
+        objective_before: whole(&samples, &before),
+        ..HopReport::default()
+    };
+    if report.candidates.is_empty() {
+        return (tr, report);
+    }
+    let kept = tr.clone();
+    let mut tr = tr;
+    let total = plan.schedule.steps(store.len());
+    let phase = ((plan.cfg.steps as f64 * total as f64).round() as usize).max(1);
+    let batch = plan.schedule.batch.min(store.len()).max(1);
+    let balanced =
+        ((plan.schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize).min(batch);
+    let segments: Vec<Vec<u32>> = samples_all(store);
+    let mut rng = Rng::new(plan.seed, 0x40b);
+    let ds = tr
+        .device_resident()
+        .then(|| DeviceStore::upload(&store.pixels, &tr.device));
+    let lambda_d = tr.cfg.lambda_d;
+    tr.cfg.lr = plan.schedule.lr_at(total.saturating_sub(1), total);
+    tr.cfg.lambda_d = plan.lambda_d;
+    tr.pull = Some(SigmaPull {
+        weight: plan.cfg.pull,
+        target: report
+            .candidates
+            .iter()
+            .map(|c| (c.segment, c.target as f32))
+            .collect(),
+    });
+    let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
+    let mut idx = Vec::with_capacity(batch);
+    for s in 0..2 * phase {
+        if s == phase {
+            tr.pull = None;
+        }
+        idx.clear();
+        for _ in 0..batch - balanced {
+            idx.push(rng.below(store.len() as u64) as u32);
+        }
+        for _ in 0..balanced {
+            let seg = &segments[rng.below(segments.len() as u64) as usize];
+            idx.push(seg[rng.below(seg.len() as u64) as usize]);
+        }
+        // The loss is not logged: the decision below evaluates the objective itself.
+        drop(step_entries(&mut tr, ds.as_ref(), store, &idx, plan.mode));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    tr.pull = None;
+    tr.cfg.lambda_d = lambda_d;
+    tr.sync_host_table();
+    let after = evaluate(&tr.model, store, &samples, plan.lambda_d, false);
+    let objective_after = whole(&samples, &after);
+    for c in &mut report.candidates {
+        if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
+            c.sigma_after = after[k].sigma;
+            c.objective_after = after[k].own;
+        }
+    }
+    report.segments = samples
+        .iter()
+        .zip(before.iter().zip(&after))
+        .map(|(s, (b, a))| SegmentObjective {
+            segment: s.id,
+            pixels: s.size,
+            before: b.own,
+            after: a.own,
+        })
+        .collect();
+    report.steps = 2 * phase;
+    report.objective_after = Some(objective_after);
+    report.accepted = hop_helped(&report.candidates);
+    if report.accepted {
+        (tr, report)
+    } else {
+        (kept, report)
+    }
+}
+
+/// Whether the candidates' size-weighted objective fell.
+fn hop_helped(c: &[HopCandidate]) -> bool {
+    let sum = |f: fn(&HopCandidate) -> f64| c.iter().map(|c| f(c) * c.pixels as f64).sum::<f64>();
+    sum(|c| c.objective_after) < sum(|c| c.objective)
+}
+
+/// Every segment's entries (for the balanced share of the hop's batches).
+fn samples_all(store: &PixelStore) -> Vec<Vec<u32>> {
+    sample(store, usize::MAX)
+        .into_iter()
+        .map(|s| s.idx)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::fit::tests::{store, toy_fit, toy_store};
+    use fipt_core::scene::SceneBox;
+
+    fn toy_trainer(cfg: fipt_core::model::TrainConfig) -> Trainer {
+        let scene_box = SceneBox { min: 0.0, max: 1.0 };
+        Trainer::new(cfg, scene_box, &burn::tensor::Device::flex(), 5)
+    }
+
+    /// The host objective is the fit's own: on one segment, the mean of Eq. 15 + 17 that
+    /// `evaluate` computes at the model equals the colour loss plus the prior of the trainer's
+    /// forward pass on the same pixels.
+    #[test]
+    fn objective_is_the_fit_loss() {
+        let mut st = toy_store(300);
+        st.pixels.seg.iter_mut().for_each(|s| *s = 0);
+        for (i, x) in st.pixels.x_world.iter_mut().enumerate() {
+            *x = [i as f32 / 300.0, 0.3, 0.7];
+        }
+        let (cfg, _) = toy_fit();
+        let mut tr = toy_trainer(cfg.with_logit_bound(None).with_lambda_d(3e-2));
+        let samples = sample(&st, usize::MAX);
+        assert_eq!(samples.len(), 1);
+        assert_eq!(samples[0].idx.len(), 300);
+        let e = evaluate(&tr.model, &st, &samples, 3e-2, true);
+        let all: Vec<u32> = (0..300).collect();
+        let parts = tr.gradients(&st.batch(&all), SegMode::None).parts;
+        let want = (parts.color + parts.diffuse) as f64;
+        assert!(
+            (e[0].own - want).abs() < 1e-5 * want.abs().max(1e-3),
+            "{} vs {want}",
+            e[0].own
+        );
+        assert_eq!(e[0].sweep.len(), SWEEP);
+        assert!(e[0].sigma > 0.02 && e[0].sigma < 1.0);
+    }
+
+    fn eval(sigma: f64, own: f64, best_at: usize, best: f64) -> SegmentEval {
+        let mut sweep = vec![own + 1.0; SWEEP];
+        sweep[best_at] = best;
+        SegmentEval { sigma, own, sweep }
+    }
+
+    /// Only a deep minimum far from the fit sends a segment hopping, to the swept σ there.
+    #[test]
+    fn only_deep_far_minima_hop() {
+        let st = store(&[0, 1, 2, 2]);
+        let samples = sample(&st, 8);
+        assert_eq!(
+            samples.iter().map(|s| s.size).collect::<Vec<_>>(),
+            [1, 1, 2]
+        );
+        let sig = sweep();
+        let near = sig.iter().position(|&s| s >= 0.9).unwrap();
+        let far = sig.iter().position(|&s| s >= 0.3).unwrap();
+        let evals = [
+            // 20 % lower at σ ≈ 0.3, fitted at 0.95: hops.
+            eval(0.95, 1.0, far, 0.8),
+            // 2 % lower: the gain is too small.
+            eval(0.95, 1.0, far, 0.98),
+            // 50 % lower but 0.05 away: no hop (descent reaches it).
+            eval(0.95, 1.0, near, 0.5),
+        ];
+        let cfg = HopConfig::default();
+        let c = candidates(&cfg, &samples, &evals);
+        assert_eq!(c.len(), 1);
+        assert_eq!(c[0].segment, 0);
+        assert_eq!(c[0].target, sig[far] as f64);
+        assert_eq!(c[0].objective_target, 0.8);
+        // The whole objective weighs each segment by its size.
+        let w = whole(&samples, &evals);
+        assert!((w - 1.0).abs() < 1e-12);
+    }
+
+    /// A hop pulls every candidate's σ towards its target, and the model it returns is the
+    /// hopped one only when the objective fell (else the very model it was given).
+    #[test]
+    fn hop_pulls_and_keeps_only_a_lower_objective() {
+        let st = toy_store(400);
+        let (cfg, schedule) = toy_fit();
+        let run = crate::pipeline::fit::FitRun {
+            mode: SegMode::Part,
+            schedule: &schedule,
+            seed: 5,
+            show_progress: false,
+        };
+        let (tr, _) =
+            crate::pipeline::fit::fit_more(toy_trainer(cfg), &st, run.mode, &schedule, 5, false);
+        let before = (tr.model.net_params(), tr.model.grid.table.clone());
+        // Every segment whose sweep finds anything lower hops; long phases, a strong pull.
+        let hc = HopConfig {
+            gain: 0.0,
+            min_move: 0.0,
+            steps: 2.0,
+            pull: 10.0,
+            pixels: 64,
+        };
+        let plan = HopPlan {
+            cfg: &hc,
+            mode: SegMode::Part,
+            schedule: &schedule,
+            lambda_d: 5e-4,
+            seed: 5,
+            show_progress: false,
+        };
+        let (out, rep) = hop(tr, &st, &plan);
+        assert!(!rep.candidates.is_empty());
+        assert_eq!(rep.steps, 2 * 50);
+        for c in &rep.candidates {
+            assert!(
+                (c.sigma_after - c.target).abs() < (c.sigma - c.target).abs(),
+                "segment {}: σ {} → {} for target {}",
+                c.segment,
+                c.sigma,
+                c.sigma_after,
+                c.target
+            );
+        }
+        assert!(rep.objective_after.is_some());
+        assert_eq!(rep.segments.len(), 5);
+        assert_eq!(rep.accepted, hop_helped(&rep.candidates));
+        let now = (out.model.net_params(), out.model.grid.table.clone());
+        assert_eq!(now == before, !rep.accepted);
+    }
+}
