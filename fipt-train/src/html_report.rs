@@ -6,9 +6,9 @@
 //! Sections: the metric table of every round against the best constant predictor, the val
 //! re-renders against the trivial predictors, time and memory per stage; the worst, median and
 //! best views (photo, re-render, and truth / estimate / error of k_d, a′, σ, m and emission);
-//! the per-part table; the emitters found; the loss curve of every round (inline SVG); the
-//! contact sheet of the re-rendered and relit val views. Without ground truth (real data) it
-//! shows the estimates alone.
+//! the per-part table; the emitters found; the basin hops of every round; the loss curve of
+//! every round (inline SVG); the contact sheet of the re-rendered and relit val views. Without
+//! ground truth (real data) it shows the estimates alone.
 //!
 //! Owns: the page and its images. Must not touch: how any figure is computed.
 
@@ -103,6 +103,7 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
     views(&mut h, &ds, out, &img_dir)?;
     parts(&mut h, run.parts.as_deref());
     emitters(&mut h, out, &ds)?;
+    hops(&mut h, &run, &ds);
     loss_curves(&mut h, &run);
     sheet(&mut h, out, &img_dir)?;
     h.push_str("</body></html>\n");
@@ -425,6 +426,43 @@ fn emitters(h: &mut String, out: &Path, ds: &Dataset) -> Result<()> {
     }
     h.push_str("</table>");
     Ok(())
+}
+
+/// The basin hops of every round (`train.hop`): which segments hopped, from and to which σ,
+/// and whether the hopped model was kept.
+fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
+    let rows: Vec<String> = run
+        .rounds
+        .iter()
+        .filter_map(|r| r.hop.as_ref().map(|hop| (r.round, hop)))
+        .flat_map(|(round, hop)| {
+            hop.candidates.iter().map(move |c| {
+                let name = ds
+                    .meta
+                    .as_ref()
+                    .and_then(|m| m.parts.iter().find(|p| p.id as i64 == i64::from(c.segment)))
+                    .map_or_else(|| format!("segment {}", c.segment), |p| p.name.clone());
+                format!(
+                    "<tr><td>{round}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:+.0} %</td><td>{}</td></tr>",
+                    esc(&name),
+                    c.pixels,
+                    c.sigma,
+                    c.target,
+                    c.sigma_after,
+                    100.0 * (c.objective_after / c.objective - 1.0),
+                    if hop.accepted { "kept" } else { "undone" }
+                )
+            })
+        })
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower at a σ far from the fitted one are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>σ fitted</th><th>target</th><th>σ after</th><th>objective</th><th></th></tr>");
+    for r in rows {
+        h.push_str(&r);
+    }
+    h.push_str("</table>");
 }
 
 fn loss_curves(h: &mut String, run: &RunReport) {
