@@ -80,22 +80,26 @@ pub struct HopCandidate {
     pub objective_after: f64,
 }
 
-/// A segment's objective before and after a hop.
+/// A segment at the hop's check: its mean fitted σ and objective, the sweep's best σ and
+/// objective there, and its objective after the hop (None where none ran).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SegmentObjective {
     pub segment: i32,
     pub pixels: usize,
+    pub sigma: f64,
     pub before: f64,
-    pub after: f64,
+    pub best_sigma: f64,
+    pub best: f64,
+    pub after: Option<f64>,
 }
 
 /// What a hop did: the candidates, whether the hopped model was kept (the candidates'
-/// size-weighted objective fell), and for the record the whole objective (every segment,
-/// size-weighted) before and after, and each segment's.
+/// size-weighted objective fell), and for the record every segment's check and the whole
+/// objective (every segment, size-weighted) before and after.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct HopReport {
     pub candidates: Vec<HopCandidate>,
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(default)]
     pub segments: Vec<SegmentObjective>,
     pub objective_before: f64,
     pub objective_after: Option<f64>,
@@ -291,8 +295,30 @@ pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopRepo
     }
     let samples = sample(store, plan.cfg.pixels);
     let before = evaluate(&tr.model, store, &samples, plan.lambda_d, true);
+    let sig = sweep();
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &samples, &before),
+        segments: samples
+            .iter()
+            .zip(&before)
+            .map(|(s, e)| {
+                let (j, best) = e
+                    .sweep
+                    .iter()
+                    .enumerate()
+                    .min_by(|a, b| a.1.total_cmp(b.1))
+                    .map_or((0, f64::NAN), |(j, b)| (j, *b));
+                SegmentObjective {
+                    segment: s.id,
+                    pixels: s.size,
+                    sigma: e.sigma,
+                    before: e.own,
+                    best_sigma: sig[j] as f64,
+                    best,
+                    after: None,
+                }
+            })
+            .collect(),
         objective_before: whole(&samples, &before),
         ..HopReport::default()
     };
@@ -352,16 +378,9 @@ pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopRepo
             c.objective_after = after[k].own;
         }
     }
-    report.segments = samples
-        .iter()
-        .zip(before.iter().zip(&after))
-        .map(|(s, (b, a))| SegmentObjective {
-            segment: s.id,
-            pixels: s.size,
-            before: b.own,
-            after: a.own,
-        })
-        .collect();
+    for (row, a) in report.segments.iter_mut().zip(&after) {
+        row.after = Some(a.own);
+    }
     report.steps = 2 * phase;
     report.objective_after = Some(objective_after);
     report.accepted = hop_helped(&report.candidates);
