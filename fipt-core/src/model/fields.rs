@@ -141,18 +141,23 @@ impl MaterialFieldConfig {
     }
 }
 
+/// The material head's output columns: base colour, roughness, metallic.
+const A_COLS: std::ops::Range<usize> = 0..3;
+const SIGMA_COL: usize = 3;
+const METALLIC_COL: usize = 4;
+
 /// Eq. 14 (material head): sigmoid outputs → a = s[0..3], σ = 0.02 + 0.98·s[3], m = s[4].
 pub fn decode_material(raw: Tensor<2>) -> Material {
     let [n, _] = raw.dims();
     let s = sigmoid(raw);
     Material {
-        a: s.clone().slice([0..n, 0..3]),
+        a: s.clone().slice([0..n, A_COLS]),
         sigma: s
             .clone()
-            .slice([0..n, 3..4])
+            .slice([0..n, SIGMA_COL..SIGMA_COL + 1])
             .mul_scalar(0.98)
             .add_scalar(0.02),
-        metallic: s.slice([0..n, 4..5]),
+        metallic: s.slice([0..n, METALLIC_COL..METALLIC_COL + 1]),
     }
 }
 
@@ -160,7 +165,8 @@ pub fn decode_material(raw: Tensor<2>) -> Material {
 /// turns into σ and m): [N,2].
 pub fn sigma_metallic_logits(raw: Tensor<2>) -> Tensor<2> {
     let [n, _] = raw.dims();
-    raw.slice([0..n, 3..5])
+    const _: () = assert!(METALLIC_COL == SIGMA_COL + 1);
+    raw.slice([0..n, SIGMA_COL..METALLIC_COL + 1])
 }
 
 impl MaterialField {

@@ -394,9 +394,10 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
         // from the same initial model as round 0 (the reference, whose seed is fixed), so
         // that a round differs from the last only by its shadings.
         let warm = r > 0 && cfg.refine.warm_start;
+        let round_train = cfg.train_for_round(r);
         let run = fit::FitRun {
             mode,
-            schedule: &cfg.train_for_round(r).schedule(),
+            schedule: &round_train.schedule(),
             seed: if warm {
                 cfg.seed.wrapping_add(r as u64)
             } else {
@@ -461,7 +462,6 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
             Ok(())
         })?;
         // The basin hop, once per fit (a fit restored after its hop is not hopped again).
-        let round_train = cfg.train_for_round(r);
         let tr = match &round_train.hop {
             Some(h) if p.log.hop.is_none() => {
                 let plan = hop::HopPlan {
