@@ -512,10 +512,14 @@ impl Config {
             for (k, v) in [
                 ("train.hop.gain", h.gain),
                 ("train.hop.min_move", h.min_move),
-                ("train.hop.steps", h.steps),
             ] {
                 check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
             }
+            check(
+                h.steps > 0.0 && h.steps <= 1.0,
+                "train.hop.steps",
+                "must be in (0, 1]",
+            )?;
             check(
                 h.pull >= 0.0 && h.pull.is_finite(),
                 "train.hop.pull",

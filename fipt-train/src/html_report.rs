@@ -18,6 +18,7 @@ use crate::pipeline::predict::{ViewMaps, rgb_of_scalar};
 use crate::report::RunReport;
 use anyhow::{Context, Result};
 use fipt_bake::emitters::Emitter;
+use fipt_core::model::step::SegMode;
 use fipt_core::scene::{Dataset, Image, LoadOptions, MapKind, Split};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -437,9 +438,11 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
         .filter_map(|r| r.hop.as_ref().map(|hop| (r.round, hop)))
         .flat_map(|(round, hop)| {
             hop.candidates.iter().map(move |c| {
+                // Part ids name their part; semantic labels stay numbers.
                 let name = ds
                     .meta
                     .as_ref()
+                    .filter(|_| run.seg_loss == SegMode::Part)
                     .and_then(|m| m.parts.iter().find(|p| p.id as i64 == i64::from(c.segment)))
                     .map_or_else(|| format!("segment {}", c.segment), |p| p.name.clone());
                 format!(

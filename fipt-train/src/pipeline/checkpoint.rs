@@ -8,7 +8,8 @@
 //! - `round{r}/step{s:07}/`: the fit of round `r` after `s` steps (`Trainer::save_state` plus
 //!   `FitProgress::save`), saved every `checkpoint.every_steps` steps, on Ctrl-C, and when the
 //!   fit ends; only the newest stays. Each folder is written under a `.tmp` name and renamed,
-//!   so it is complete or absent.
+//!   so it is complete or absent. After the fit's basin hop (`pipeline::hop`) its last folder
+//!   is written again with the hopped state and the hop's report (`save_again`).
 //! - `round{r}/emitters.json` (round 0) and `round{r}/report.json` (every round but the last):
 //!   what follows a finished fit.
 //!

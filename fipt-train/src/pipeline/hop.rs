@@ -2,7 +2,8 @@
 //! after a fit, the fit's own objective is swept over one common σ per segment at the fitted
 //! base colour and metallic; where a σ far from the fitted one scores clearly lower, the fit
 //! continues with σ pulled there (`SigmaPull`), then released (trained as in the fit's last
-//! step), and the hopped model is kept only if the hopped segments' objective fell. The other
+//! step), and the hopped model is kept only if the hopped segments' objective fell by at least
+//! `gain` too. The other
 //! segments see only more steps of the same fit; their objective is not part of the decision:
 //! on fipt-room it moves by ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1,
 //! objective ~0.4 per pixel against ~1e-3 elsewhere) would decide it alone.
@@ -94,7 +95,7 @@ pub struct SegmentObjective {
 }
 
 /// What a hop did: the candidates, whether the hopped model was kept (the candidates'
-/// size-weighted objective fell), and for the record every segment's check and the whole
+/// size-weighted objective fell by `gain`), and for the record every segment's check and the whole
 /// objective (every segment, size-weighted) before and after.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct HopReport {
@@ -190,31 +191,22 @@ fn evaluate(
                 data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
             };
             let base = |i: usize| glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
-            // Sums over pixels: σ, own objective, and the (σ, scale) grid.
-            let zero = || (0.0, 0.0, vec![0.0; SWEEP * scales]);
-            let (sum_sigma, own, grid) = (0..s.idx.len())
+            // Sums over pixels, each in pixel order (so that a run gives the same bits on any
+            // number of threads): σ, the own objective, and per (σ, scale) cell of the sweep in
+            // parallel over the cells.
+            let pixels = 0..s.idx.len();
+            let sum_sigma: f64 = pixels.clone().map(|i| mat.sigma[i] as f64).sum();
+            let own: f64 = pixels.clone().map(|i| term(i, base(i), mat.sigma[i])).sum();
+            let grid: Vec<f64> = (0..SWEEP * scales)
                 .into_par_iter()
-                .fold(zero, |(ss, o, mut g), i| {
-                    for (k, &sg) in sig
-                        .iter()
-                        .enumerate()
-                        .take(if scales > 0 { SWEEP } else { 0 })
-                    {
-                        for j in 0..scales {
-                            let a = (base(i) * scale(j)).min(glam::Vec3::ONE);
-                            g[k * scales + j] += term(i, a, sg);
-                        }
-                    }
-                    (
-                        ss + mat.sigma[i] as f64,
-                        o + term(i, base(i), mat.sigma[i]),
-                        g,
-                    )
+                .map(|cell| {
+                    let (k, j) = (cell / scales, cell % scales);
+                    pixels
+                        .clone()
+                        .map(|i| term(i, (base(i) * scale(j)).min(glam::Vec3::ONE), sig[k]))
+                        .sum()
                 })
-                .reduce(zero, |(s1, o1, g1), (s2, o2, g2)| {
-                    let g = g1.iter().zip(&g2).map(|(x, y)| x + y).collect();
-                    (s1 + s2, o1 + o2, g)
-                });
+                .collect();
             SegmentEval {
                 sigma: sum_sigma / n,
                 own: own / n,
@@ -289,9 +281,16 @@ pub struct HopPlan<'a> {
 
 /// Tries a hop after a finished fit on `store`: returns the trainer to keep (the hopped one, or
 /// `tr` as it came) and what happened. Without segments (`SegMode::None`) nothing hops.
-pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopReport) {
+///
+/// Ctrl-C stops it between two steps with `interrupt::Interrupted` (the caller has saved the
+/// fit's end; a run again redoes the hop from there).
+pub fn hop(
+    tr: Trainer,
+    store: &PixelStore,
+    plan: &HopPlan,
+) -> anyhow::Result<(Trainer, HopReport)> {
     if plan.mode == SegMode::None || store.is_empty() {
-        return (tr, HopReport::default());
+        return Ok((tr, HopReport::default()));
     }
     let samples = sample(store, plan.cfg.pixels);
     let before = evaluate(&tr.model, store, &samples, plan.lambda_d, true);
@@ -323,7 +322,7 @@ pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopRepo
         ..HopReport::default()
     };
     if report.candidates.is_empty() {
-        return (tr, report);
+        return Ok((tr, report));
     }
     let kept = tr.clone();
     let mut tr = tr;
@@ -351,6 +350,10 @@ pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopRepo
     let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
     let mut idx = Vec::with_capacity(batch);
     for s in 0..2 * phase {
+        if let Err(e) = crate::interrupt::check(|| "interrupted during a basin hop".into()) {
+            pb.finish_and_clear();
+            return Err(e);
+        }
         if s == phase {
             tr.pull = None;
         }
@@ -383,18 +386,20 @@ pub fn hop(tr: Trainer, store: &PixelStore, plan: &HopPlan) -> (Trainer, HopRepo
     }
     report.steps = 2 * phase;
     report.objective_after = Some(objective_after);
-    report.accepted = hop_helped(&report.candidates);
-    if report.accepted {
+    report.accepted = hop_helped(&report.candidates, plan.cfg.gain);
+    Ok(if report.accepted {
         (tr, report)
     } else {
         (kept, report)
-    }
+    })
 }
 
-/// Whether the candidates' size-weighted objective fell.
-fn hop_helped(c: &[HopCandidate]) -> bool {
+/// Whether the candidates' size-weighted objective fell by at least `gain` of itself (the
+/// share that called for the hop: the extra steps alone move a segment's objective by a few
+/// per cent either way).
+fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
     let sum = |f: fn(&HopCandidate) -> f64| c.iter().map(|c| f(c) * c.pixels as f64).sum::<f64>();
-    sum(|c| c.objective_after) < sum(|c| c.objective)
+    sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
 }
 
 /// Every segment's entries (for the balanced share of the hop's batches).
@@ -512,7 +517,7 @@ mod tests {
             seed: 5,
             show_progress: false,
         };
-        let (out, rep) = hop(tr, &st, &plan);
+        let (out, rep) = hop(tr, &st, &plan).unwrap();
         assert!(!rep.candidates.is_empty());
         assert_eq!(rep.steps, 2 * 50);
         for c in &rep.candidates {
@@ -527,7 +532,7 @@ mod tests {
         }
         assert!(rep.objective_after.is_some());
         assert_eq!(rep.segments.len(), 5);
-        assert_eq!(rep.accepted, hop_helped(&rep.candidates));
+        assert_eq!(rep.accepted, hop_helped(&rep.candidates, hc.gain));
         let now = (out.model.net_params(), out.model.grid.table.clone());
         assert_eq!(now == before, !rep.accepted);
     }

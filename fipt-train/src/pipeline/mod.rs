@@ -473,7 +473,11 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
                     seed: cfg.seed ^ ((r as u64) << 40),
                     show_progress: !quiet,
                 };
-                let (tr, rep) = hop::hop(tr, st, &plan);
+                let (tr, rep) = hop::hop(tr, st, &plan).map_err(|e| {
+                    crate::interrupt::reword(e, || {
+                        stopped(out, &format!("during round {r}'s basin hop (it restarts)"))
+                    })
+                })?;
                 p.log.hop = Some(rep);
                 // Over the state saved at the fit's last step: a resumed run restores the
                 // hopped model and its report, and does not hop again.
