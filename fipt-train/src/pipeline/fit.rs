@@ -125,7 +125,7 @@ pub struct FitPlan {
 
 /// Draws batch indices: shuffled epochs over all pixels, and the balanced share by segment.
 #[derive(Clone, Debug)]
-struct Sampler {
+pub(super) struct Sampler {
     rng: Rng,
     /// The current permutation of all pixels (each epoch shuffles the last one further).
     order: Vec<u32>,
@@ -147,7 +147,8 @@ impl Sampler {
         }
     }
 
-    fn segments_of(store: &PixelStore, balanced: bool) -> Vec<Vec<u32>> {
+    /// Pixel indices of each segment, in segment-id order (none unless `balanced`).
+    pub(super) fn segments_of(store: &PixelStore, balanced: bool) -> Vec<Vec<u32>> {
         if !balanced {
             return Vec::new();
         }
@@ -396,16 +397,16 @@ fn read_progress(dir: &Path) -> anyhow::Result<ProgressFile> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// The batch sizes and step counts of a fit over a store.
-struct Shape {
-    batch: usize,
-    balanced: usize,
-    steps: usize,
+/// The batch sizes and step counts of a fit over a store (also the basin hop's batches).
+pub(super) struct Shape {
+    pub(super) batch: usize,
+    pub(super) balanced: usize,
+    pub(super) steps: usize,
     steps_per_epoch: usize,
 }
 
 impl Shape {
-    fn of(store: &PixelStore, mode: SegMode, schedule: &Schedule) -> Self {
+    pub(super) fn of(store: &PixelStore, mode: SegMode, schedule: &Schedule) -> Self {
         let batch = schedule.batch.min(store.len()).max(1);
         let balanced = ((schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize)
             .min(batch)

@@ -23,7 +23,7 @@
 //! Owns: the sweep, the hop's two phases and its decision. Must not touch: the fit's schedule,
 //! the model maths.
 
-use super::fit::{Schedule, step_entries};
+use super::fit::{Sampler, Schedule, Shape, step_entries};
 use super::landscape::SWEEP;
 use super::pixels::PixelStore;
 use crate::progress::progress_bar;
@@ -234,36 +234,51 @@ fn whole(samples: &[SegmentSample], evals: &[SegmentEval]) -> f64 {
         / n.max(1) as f64
 }
 
-/// The segments to hop and their targets: where the sweep's best σ lies at least `min_move`
-/// from the fitted mean and lowers the segment's objective by at least `gain` of it.
-fn candidates(
-    cfg: &HopConfig,
-    samples: &[SegmentSample],
-    evals: &[SegmentEval],
-) -> Vec<HopCandidate> {
+/// Every segment's check: its mean fitted σ and objective, and the sweep's best σ and
+/// objective (NaN without a sweep).
+fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObjective> {
     let sig = sweep();
     samples
         .iter()
         .zip(evals)
-        .filter_map(|(s, e)| {
+        .map(|(s, e)| {
             let (j, best) = e
                 .sweep
                 .iter()
                 .enumerate()
-                .min_by(|a, b| a.1.total_cmp(b.1))?;
-            let target = sig[j] as f64;
-            let hop = (target - e.sigma).abs() >= cfg.min_move as f64
-                && e.own - best >= cfg.gain as f64 * e.own;
-            hop.then_some(HopCandidate {
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .map_or((0, f64::NAN), |(j, b)| (j, *b));
+            SegmentObjective {
                 segment: s.id,
                 pixels: s.size,
                 sigma: e.sigma,
-                target,
-                sigma_after: e.sigma,
-                objective: e.own,
-                objective_target: *best,
-                objective_after: e.own,
-            })
+                before: e.own,
+                best_sigma: sig[j] as f64,
+                best,
+                after: None,
+            }
+        })
+        .collect()
+}
+
+/// The segments to hop and their targets: where the sweep's best σ lies at least `min_move`
+/// from the fitted mean and lowers the segment's objective by at least `gain` of it.
+fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
+    checks
+        .iter()
+        .filter(|c| {
+            (c.best_sigma - c.sigma).abs() >= cfg.min_move as f64
+                && c.before - c.best >= cfg.gain as f64 * c.before
+        })
+        .map(|c| HopCandidate {
+            segment: c.segment,
+            pixels: c.pixels,
+            sigma: c.sigma,
+            target: c.best_sigma,
+            sigma_after: c.sigma,
+            objective: c.before,
+            objective_target: c.best,
+            objective_after: c.before,
         })
         .collect()
 }
@@ -294,30 +309,10 @@ pub fn hop(
     }
     let samples = sample(store, plan.cfg.pixels);
     let before = evaluate(&tr.model, store, &samples, plan.lambda_d, true);
-    let sig = sweep();
+    let segments = checks(&samples, &before);
     let mut report = HopReport {
-        candidates: candidates(plan.cfg, &samples, &before),
-        segments: samples
-            .iter()
-            .zip(&before)
-            .map(|(s, e)| {
-                let (j, best) = e
-                    .sweep
-                    .iter()
-                    .enumerate()
-                    .min_by(|a, b| a.1.total_cmp(b.1))
-                    .map_or((0, f64::NAN), |(j, b)| (j, *b));
-                SegmentObjective {
-                    segment: s.id,
-                    pixels: s.size,
-                    sigma: e.sigma,
-                    before: e.own,
-                    best_sigma: sig[j] as f64,
-                    best,
-                    after: None,
-                }
-            })
-            .collect(),
+        candidates: candidates(plan.cfg, &segments),
+        segments,
         objective_before: whole(&samples, &before),
         ..HopReport::default()
     };
@@ -326,12 +321,15 @@ pub fn hop(
     }
     let kept = tr.clone();
     let mut tr = tr;
-    let total = plan.schedule.steps(store.len());
+    // The fit's batch sizes and segments; draws of its own (uniform with replacement).
+    let Shape {
+        batch,
+        balanced,
+        steps: total,
+        ..
+    } = Shape::of(store, plan.mode, plan.schedule);
     let phase = ((plan.cfg.steps as f64 * total as f64).round() as usize).max(1);
-    let batch = plan.schedule.batch.min(store.len()).max(1);
-    let balanced =
-        ((plan.schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize).min(batch);
-    let segments: Vec<Vec<u32>> = samples_all(store);
+    let segments = Sampler::segments_of(store, true);
     let mut rng = Rng::new(plan.seed, 0x40b);
     let ds = tr
         .device_resident()
@@ -402,14 +400,6 @@ fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
     sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
 }
 
-/// Every segment's entries (for the balanced share of the hop's batches).
-fn samples_all(store: &PixelStore) -> Vec<Vec<u32>> {
-    sample(store, usize::MAX)
-        .into_iter()
-        .map(|s| s.idx)
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -476,7 +466,7 @@ mod tests {
             eval(0.95, 1.0, near, 0.5),
         ];
         let cfg = HopConfig::default();
-        let c = candidates(&cfg, &samples, &evals);
+        let c = candidates(&cfg, &checks(&samples, &evals));
         assert_eq!(c.len(), 1);
         assert_eq!(c[0].segment, 0);
         assert_eq!(c[0].target, sig[far] as f64);
