@@ -512,6 +512,7 @@ impl Config {
             for (k, v) in [
                 ("train.hop.gain", h.gain),
                 ("train.hop.min_move", h.min_move),
+                ("train.hop.prior", h.prior),
             ] {
                 check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
             }

@@ -292,8 +292,9 @@ impl Checkpoints {
     }
 
     /// `save`, replacing a folder already saved at this step: for a fit whose state changed
-    /// after its last step (the basin hop, `pipeline::hop`). Killed between the removal of the
-    /// old folder and the rename of the new one, the round's fit restarts.
+    /// after its last step (the basin hop, `pipeline::hop`). The old folder is renamed
+    /// `stepN.prev` until the new one is in place; a run killed in between finds it there, and
+    /// `remove_stale_tmp` puts it back (the round then redoes only what followed that save).
     pub fn save_again(&self, round: usize, tr: &Trainer, p: &mut FitProgress) -> Result<()> {
         self.save_step(round, tr, p, true)
     }
@@ -318,11 +319,16 @@ impl Checkpoints {
             .with_context(|| format!("{}: cannot create", tmp.display()))?;
         tr.save_state(&tmp).map_err(anyhow::Error::msg)?;
         p.save(&tmp)?;
+        let prev = rd.join(format!("{name}.prev"));
         if fin.exists() {
-            remove_dir_aside(&fin);
+            remove_dir_aside(&prev);
+            std::fs::rename(&fin, &prev).with_context(|| {
+                format!("{}: cannot rename to {}", fin.display(), prev.display())
+            })?;
         }
         std::fs::rename(&tmp, &fin)
             .with_context(|| format!("{}: cannot rename to {}", tmp.display(), fin.display()))?;
+        remove_dir_aside(&prev);
         for (s, d) in step_dirs(&rd) {
             if s < p.step {
                 remove_dir_aside(&d);
@@ -443,11 +449,27 @@ fn restore_set_aside(out: &Path) {
     }
 }
 
+/// The step a folder `stepN.prev` (the old state `save_again` sets aside) belongs to.
+fn replaced_step(name: &str) -> Option<&str> {
+    let stem = name.strip_suffix(".prev")?;
+    (stem.starts_with("step") && stem.len() > 4 && stem[4..].bytes().all(|b| b.is_ascii_digit()))
+        .then_some(stem)
+}
+
 fn clean(dir: &Path, recurse: bool) {
     for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
         let p = e.path();
         let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
-        if stale_tmp(&e.file_name().to_string_lossy()) {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if let Some(step) = replaced_step(&name).filter(|_| recurse) {
+            // A `save_again` killed before its new folder was in place: the old one returns.
+            let fin = dir.join(step);
+            if fin.exists() {
+                remove_dir_aside(&p);
+            } else {
+                let _ = std::fs::rename(&p, &fin);
+            }
+        } else if stale_tmp(&name) {
             if is_dir {
                 let _ = std::fs::remove_dir_all(&p);
             } else {
@@ -462,6 +484,35 @@ fn clean(dir: &Path, recurse: bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `save_again` killed between setting the old folder aside and putting the new one in
+    /// place leaves `stepN.prev` alone: the next run puts it back. Killed after, the new folder
+    /// stays and the old one goes.
+    #[test]
+    fn a_killed_save_again_returns_the_old_state() {
+        let out = std::env::temp_dir().join(format!("fipt-prev-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let rd = out.join("checkpoint").join("round1");
+        let put = |name: &str, text: &str| {
+            std::fs::create_dir_all(rd.join(name)).unwrap();
+            std::fs::write(rd.join(name).join("progress.json"), text).unwrap();
+        };
+        let read = |name: &str| std::fs::read_to_string(rd.join(name).join("progress.json")).ok();
+        put("step0000300.prev", "old");
+        remove_stale_tmp(&out);
+        assert_eq!(read("step0000300").as_deref(), Some("old"));
+        assert!(!rd.join("step0000300.prev").exists());
+        assert_eq!(step_dirs(&rd).len(), 1);
+        put("step0000300.prev", "older");
+        remove_stale_tmp(&out);
+        assert_eq!(read("step0000300").as_deref(), Some("old"));
+        assert!(!rd.join("step0000300.prev").exists());
+        // Only checkpoint step folders are restored.
+        assert_eq!(replaced_step("step0000300.prev"), Some("step0000300"));
+        assert_eq!(replaced_step("step.prev"), None);
+        assert_eq!(replaced_step("maps.prev"), None);
+        std::fs::remove_dir_all(&out).unwrap();
+    }
 
     #[test]
     fn key_mismatch_names_what_changed() {

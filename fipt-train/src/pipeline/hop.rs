@@ -15,10 +15,12 @@
 //! plateau, a hop to where the objective already says it should be does.
 //!
 //! The objective evaluated is the one the fit minimises, Eq. 15 + 17: the tone-mapped MSE of the
-//! composite (1 − α)·C + α·I and λ_d·(|σ − 1| + m) at the fit's final λ_d, on up to
-//! `pixels` pixels per segment (evenly strided over the store), weighted by segment size. The
-//! segmentation loss and the logit bound are left out (a common σ per segment leaves the first at
-//! its minimum).
+//! composite (1 − α)·C + α·I and λ_d·(|σ − 1| + m), on up to `pixels` pixels per segment
+//! (evenly strided over the store), weighted by segment size, with `prior` × the fit's final
+//! λ_d (`prior` 0: the data term alone, so that the diffuse prior breaks ties where the data is
+//! flat but cannot hold a part on the rough side of evidence `gain` strong). The segmentation
+//! loss and the logit bound are left out (a common σ per segment leaves the first at its
+//! minimum).
 //!
 //! Owns: the sweep, the hop's two phases and its decision. Must not touch: the fit's schedule,
 //! the model maths.
@@ -50,6 +52,9 @@ pub struct HopConfig {
     pub pull: f32,
     /// Pixels per segment in the sweep and the decision.
     pub pixels: usize,
+    /// Share of the fit's final λ_d that the check and the decision hold (1: the fit's own
+    /// objective, Eq. 15 + 17; 0: the data term alone, Eq. 15).
+    pub prior: f32,
 }
 
 impl Default for HopConfig {
@@ -60,6 +65,7 @@ impl Default for HopConfig {
             steps: 0.15,
             pull: 1e-2,
             pixels: 4096,
+            prior: 0.0,
         }
     }
 }
@@ -308,7 +314,8 @@ pub fn hop(
         return Ok((tr, HopReport::default()));
     }
     let samples = sample(store, plan.cfg.pixels);
-    let before = evaluate(&tr.model, store, &samples, plan.lambda_d, true);
+    let held = plan.lambda_d * plan.cfg.prior;
+    let before = evaluate(&tr.model, store, &samples, held, true);
     let segments = checks(&samples, &before);
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
@@ -371,7 +378,7 @@ pub fn hop(
     tr.pull = None;
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
-    let after = evaluate(&tr.model, store, &samples, plan.lambda_d, false);
+    let after = evaluate(&tr.model, store, &samples, held, false);
     let objective_after = whole(&samples, &after);
     for c in &mut report.candidates {
         if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
@@ -437,6 +444,15 @@ mod tests {
         );
         assert_eq!(e[0].sweep.len(), SWEEP);
         assert!(e[0].sigma > 0.02 && e[0].sigma < 1.0);
+        // `prior` 0 holds no λ_d: the data term alone, Eq. 15.
+        let data = evaluate(&tr.model, &st, &samples, 0.0, false);
+        let want = parts.color as f64;
+        assert!(
+            (data[0].own - want).abs() < 1e-5 * want.abs().max(1e-3),
+            "{} vs {want}",
+            data[0].own
+        );
+        assert!(data[0].own < e[0].own);
     }
 
     fn eval(sigma: f64, own: f64, best_at: usize, best: f64) -> SegmentEval {
@@ -498,6 +514,7 @@ mod tests {
             steps: 2.0,
             pull: 10.0,
             pixels: 64,
+            prior: 1.0,
         };
         let plan = HopPlan {
             cfg: &hc,
