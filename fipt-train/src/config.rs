@@ -634,6 +634,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("train.hop.min_move"), "{e}");
+        let e = Config::from_json(r#"{"train": {"hop": {"prior": -0.5}}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.hop.prior"), "{e}");
         let e = Config::from_json(r#"{"train": {"hop": {"gian": 0.1}}}"#)
             .unwrap_err()
             .to_string();

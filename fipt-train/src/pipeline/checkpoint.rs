@@ -492,17 +492,21 @@ mod tests {
     fn a_killed_save_again_returns_the_old_state() {
         let out = std::env::temp_dir().join(format!("fipt-prev-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
-        let rd = out.join("checkpoint").join("round1");
+        let rd = out.join("checkpoint").join("round0");
         let put = |name: &str, text: &str| {
             std::fs::create_dir_all(rd.join(name)).unwrap();
             std::fs::write(rd.join(name).join("progress.json"), text).unwrap();
         };
         let read = |name: &str| std::fs::read_to_string(rd.join(name).join("progress.json")).ok();
+        // Killed between the two renames: the new state still under its `.tmp` name.
         put("step0000300.prev", "old");
+        put("step0000300.tmp", "new, unfinished");
         remove_stale_tmp(&out);
+        assert!(!rd.join("step0000300.tmp").exists());
         assert_eq!(read("step0000300").as_deref(), Some("old"));
         assert!(!rd.join("step0000300.prev").exists());
         assert_eq!(step_dirs(&rd).len(), 1);
+        // Killed after the second rename: the new state stays.
         put("step0000300.prev", "older");
         remove_stale_tmp(&out);
         assert_eq!(read("step0000300").as_deref(), Some("old"));
@@ -511,6 +515,10 @@ mod tests {
         assert_eq!(replaced_step("step0000300.prev"), Some("step0000300"));
         assert_eq!(replaced_step("step.prev"), None);
         assert_eq!(replaced_step("maps.prev"), None);
+        assert_eq!(
+            describe(&out.join("checkpoint")).as_deref(),
+            Some("round 0 at step 300")
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 

@@ -1,6 +1,7 @@
 //! Basin hopping on the roughness, per segment (a departure from the reference, `train.hop`):
-//! after a fit, the fit's own objective is swept over one common σ per segment at the fitted
-//! base colour and metallic; where a σ far from the fitted one scores clearly lower, the fit
+//! after a fit, the fit's objective (its data term, and `prior` × its diffuse prior) is swept
+//! over one common σ per segment at the fitted base colour and metallic; where a σ far from the
+//! fitted one scores clearly lower, the fit
 //! continues with σ pulled there (`SigmaPull`), then released (trained as in the fit's last
 //! step), and the hopped model is kept only if the hopped segments' objective fell by at least
 //! `gain` too. The other
@@ -14,13 +15,14 @@
 //! prior favour σ ≈ 0.3 by 15 % (the README measures it); no amount of descent leaves such a
 //! plateau, a hop to where the objective already says it should be does.
 //!
-//! The objective evaluated is the one the fit minimises, Eq. 15 + 17: the tone-mapped MSE of the
+//! The objective evaluated is that of the fit, Eq. 15 + 17: the tone-mapped MSE of the
 //! composite (1 − α)·C + α·I and λ_d·(|σ − 1| + m), on up to `pixels` pixels per segment
-//! (evenly strided over the store), weighted by segment size, with `prior` × the fit's final
-//! λ_d (`prior` 0: the data term alone, so that the diffuse prior breaks ties where the data is
-//! flat but cannot hold a part on the rough side of evidence `gain` strong). The segmentation
-//! loss and the logit bound are left out (a common σ per segment leaves the first at its
-//! minimum).
+//! (evenly strided over the store), weighted by segment size, with λ_d = `prior` × the fit's
+//! final λ_d. With `prior` 0 (the shipped configs) it is the data term alone: a segment whose
+//! data is flat gains less than `gain` anywhere and keeps the σ the fit reached under its
+//! prior, while one whose data clearly prefers a σ far away is no longer held on the rough side
+//! by the prior. The segmentation loss and the logit bound are left out (a common σ per segment
+//! leaves the first at its minimum).
 //!
 //! Owns: the sweep, the hop's two phases and its decision. Must not touch: the fit's schedule,
 //! the model maths.
@@ -113,6 +115,9 @@ pub struct HopReport {
     pub accepted: bool,
     /// Steps run (both phases).
     pub steps: usize,
+    /// The λ_d the objectives above hold (`prior` × the fit's final λ_d; 0: the data term).
+    #[serde(default)]
+    pub lambda_d: f64,
 }
 
 /// The swept σ values, as the landscape's.
@@ -268,12 +273,14 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
 }
 
 /// The segments to hop and their targets: where the sweep's best σ lies at least `min_move`
-/// from the fitted mean and lowers the segment's objective by at least `gain` of it.
+/// from the fitted mean and lowers the segment's objective by at least `gain` of it (a
+/// segment already at zero, e.g. all behind the emission mask, has nothing to gain).
 fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
     checks
         .iter()
         .filter(|c| {
             (c.best_sigma - c.sigma).abs() >= cfg.min_move as f64
+                && c.before > 0.0
                 && c.before - c.best >= cfg.gain as f64 * c.before
         })
         .map(|c| HopCandidate {
@@ -294,7 +301,7 @@ pub struct HopPlan<'a> {
     pub cfg: &'a HopConfig,
     pub mode: SegMode,
     pub schedule: &'a Schedule,
-    /// The fit's λ_d at its last step (the prior the objective holds).
+    /// The fit's λ_d at its last step (the objective holds `prior` × this).
     pub lambda_d: f32,
     pub seed: u64,
     pub show_progress: bool,
@@ -321,6 +328,7 @@ pub fn hop(
         candidates: candidates(plan.cfg, &segments),
         segments,
         objective_before: whole(&samples, &before),
+        lambda_d: held as f64,
         ..HopReport::default()
     };
     if report.candidates.is_empty() {
@@ -490,6 +498,70 @@ mod tests {
         // The whole objective weighs each segment by its size.
         let w = whole(&samples, &evals);
         assert!((w - 1.0).abs() < 1e-12);
+        // A segment already at zero (all behind the emission mask) has nothing to gain.
+        let zero = [eval(0.95, 0.0, far, 0.0)];
+        assert!(candidates(&cfg, &checks(&samples[..1], &zero)).is_empty());
+    }
+
+    /// The check holds `prior` × the fit's λ_d: with 0 each segment's objective is its data
+    /// term, with 1 the data term plus λ_d·mean(|σ − 1| + m).
+    #[test]
+    fn the_check_holds_its_share_of_the_prior() {
+        let st = toy_store(400);
+        let (cfg, schedule) = toy_fit();
+        let (tr, _) = crate::pipeline::fit::fit_more(
+            toy_trainer(cfg),
+            &st,
+            SegMode::Part,
+            &schedule,
+            5,
+            false,
+        );
+        let lambda_d = 0.05;
+        let report = |prior: f32| {
+            // gain 1: no segment can gain it all, so nothing hops.
+            let hc = HopConfig {
+                gain: 1.0,
+                pixels: 64,
+                prior,
+                ..HopConfig::default()
+            };
+            let plan = HopPlan {
+                cfg: &hc,
+                mode: SegMode::Part,
+                schedule: &schedule,
+                lambda_d,
+                seed: 5,
+                show_progress: false,
+            };
+            hop(tr.clone(), &st, &plan).unwrap().1
+        };
+        let (data, full) = (report(0.0), report(1.0));
+        assert!(data.candidates.is_empty() && full.candidates.is_empty());
+        assert_eq!((data.lambda_d, full.lambda_d), (0.0, lambda_d as f64));
+        let samples = sample(&st, 64);
+        let want = evaluate(&tr.model, &st, &samples, 0.0, false);
+        let mat = |s: &SegmentSample| tr.model.material(&st.batch(&s.idx).x_unit);
+        for ((d, f), (s, w)) in data
+            .segments
+            .iter()
+            .zip(&full.segments)
+            .zip(samples.iter().zip(&want))
+        {
+            assert_eq!(d.before, w.own);
+            let m = mat(s);
+            let prior = (0..s.idx.len())
+                .map(|i| ((m.sigma[i] - 1.0).abs() + m.metallic[i]) as f64)
+                .sum::<f64>()
+                / s.idx.len() as f64;
+            assert!(
+                (f.before - d.before - lambda_d as f64 * prior).abs() < 1e-6,
+                "segment {}: {} − {} vs λ_d·{prior}",
+                d.segment,
+                f.before,
+                d.before
+            );
+        }
     }
 
     /// A hop pulls every candidate's σ towards its target, and the model it returns is the
