@@ -452,6 +452,7 @@ impl HashGrid {
         let (nl, nf) = (self.levels.len(), self.features);
         assert_eq!(grad_out.len(), xs.len() * nl * nf);
         grad.step += 1;
+        let stamp = grad.step;
         let coef = adam.advance(lr);
         let up = Upstream {
             xs,
@@ -463,13 +464,21 @@ impl HashGrid {
         let p_l = split_levels(&levels, nf, &mut self.table);
         let m_l = split_levels(&levels, nf, &mut adam.m);
         let v_l = split_levels(&levels, nf, &mut adam.v);
+        let g_l = split_levels(&levels, nf, &mut grad.values);
+        let k_l = split_levels(&levels, 1, &mut grad.mark);
         p_l.into_par_iter()
             .zip(m_l)
             .zip(v_l)
+            .zip(g_l)
+            .zip(k_l)
             .zip(levels.par_iter())
             .enumerate()
-            .for_each(|(l, (((p, m), v), level))| {
-                sorted_adam_level(&coef, level, l, &up, (p, m, v));
+            .for_each(|(l, (((((p, m), v), gv), mark), level))| {
+                if dense_update(level, xs.len()) {
+                    dense_adam_level(&coef, level, l, &up, (p, m, v), gv, mark, stamp);
+                } else {
+                    sorted_adam_level(&coef, level, l, &up, (p, m, v));
+                }
             });
         grad.touched.clear();
     }
@@ -733,6 +742,89 @@ fn scatter_level(
     t
 }
 
+/// Whether `backward_adam` updates `level` through its dense gradient (`dense_adam_level`)
+/// rather than by sorting its touches (`sorted_adam_level`): where the level's gradient and
+/// marks stay in a core's L2 cache (≤ 2^17 entries, 1 MiB at 2 features), or where the touches
+/// outnumber half its entries, a scatter and one sweep over the level beat the sort.
+fn dense_update(level: &Level, points: usize) -> bool {
+    level.size <= 1 << 17 || level.size <= 2 * 8 * points
+}
+
+/// One level of the fused backward + Adam through the level's dense gradient: every corner
+/// touch is added to its entry in touch order (the order `scatter_level` and
+/// `sorted_adam_level` sum in, so the update is bit-identical to both), then one sweep in
+/// entry order applies Adam to the entries touched this step (`stamp`) and zeroes them.
+#[allow(clippy::too_many_arguments)]
+fn dense_adam_level(
+    c: &AdamCoef,
+    level: &Level,
+    l: usize,
+    up: &Upstream,
+    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
+    gv: &mut [f32],
+    mark: &mut [u32],
+    stamp: u32,
+) {
+    let nf = up.nf;
+    for (pi, &x) in up.xs.iter().enumerate() {
+        let cl = cell(level, x);
+        let go = up.at(pi, l);
+        for k in 0..8 {
+            let e = cl.idx[k] as usize;
+            mark[e] = stamp;
+            for (f, &g) in go.iter().enumerate() {
+                gv[e * nf + f] += cl.w[k] * g;
+            }
+        }
+    }
+    if nf == 2 {
+        sweep::<2>(c, (p, m, v), gv, mark, stamp);
+    } else {
+        for (e, &mk) in mark.iter().enumerate() {
+            if mk == stamp {
+                for j in e * nf..(e + 1) * nf {
+                    c.apply(&mut p[j], &mut m[j], &mut v[j], gv[j]);
+                    gv[j] = 0.0;
+                }
+            }
+        }
+    }
+}
+
+/// Adam on the entries of one level marked `stamp` (`NF` features each), without branches:
+/// every entry's update is computed (`AdamCoef::apply`'s operations, in its order) and kept
+/// where marked, so the loop vectorises and the kept values are `apply`'s to the bit. The
+/// gradient is zeroed everywhere (unmarked entries hold zero already).
+fn sweep<const NF: usize>(
+    c: &AdamCoef,
+    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
+    gv: &mut [f32],
+    mark: &[u32],
+    stamp: u32,
+) {
+    let (b1, b2, c1, c2, lr, eps) = (c.b1, c.b2, c.c1, c.c2, c.lr, c.eps);
+    let (a1, a2) = (1.0 - b1, 1.0 - b2);
+    for ((((pe, me), ve), ge), &mk) in p
+        .chunks_exact_mut(NF)
+        .zip(m.chunks_exact_mut(NF))
+        .zip(v.chunks_exact_mut(NF))
+        .zip(gv.chunks_exact_mut(NF))
+        .zip(mark)
+    {
+        let keep = mk == stamp;
+        for f in 0..NF {
+            let g = ge[f];
+            let mn = b1 * me[f] + a1 * g;
+            let vn = b2 * ve[f] + a2 * g * g;
+            let pn = pe[f] - lr * (mn / c1) / ((vn / c2).sqrt() + eps);
+            me[f] = if keep { mn } else { me[f] };
+            ve[f] = if keep { vn } else { ve[f] };
+            pe[f] = if keep { pn } else { pe[f] };
+            ge[f] = 0.0;
+        }
+    }
+}
+
 /// One level of the fused backward + Adam, in entry order. Every corner touch becomes a
 /// (entry, touch) pair, stably radix-sorted by entry; each run of equal entries is summed in
 /// touch order, which is the order `scatter_level` adds them in, so the gradient and the update
@@ -987,6 +1079,84 @@ mod tests {
         }
         assert_eq!(a.table, b.table);
         assert!(gb.values.iter().all(|v| *v == 0.0));
+    }
+
+    /// The two ways `backward_adam` updates a level give the same bits, on dense and hashed
+    /// levels, over steps where entries are touched once, many times, or not at all; and a
+    /// grid with levels too large for the dense way (the sorted one) still equals the
+    /// separate passes.
+    #[test]
+    fn dense_and_sorted_level_updates_agree() {
+        let g0 = HashGridConfig::new()
+            .with_levels(5)
+            .with_log2_table(12)
+            .with_base_resolution(4.0)
+            .with_per_level_scale(2.5)
+            .init(5);
+        assert!(g0.levels.iter().any(|l| l.dense) && g0.levels.iter().any(|l| !l.dense));
+        let nf = g0.features;
+        let mut r = Rng::new(4, 4);
+        let (mut a, mut b) = (g0.clone(), g0.clone());
+        let (mut ga, mut aa) = (TableGrad::new(&a), TableAdam::new(&a, 0.9, 0.99, 1e-8));
+        let mut ab = TableAdam::new(&b, 0.9, 0.99, 1e-8);
+        for step in 0..4 {
+            let xs = points(40 + 300 * step, 30 + step as u64);
+            let go: Vec<f32> = (0..xs.len() * a.output_dim())
+                .map(|_| r.next_f32() - 0.5)
+                .collect();
+            let up = Upstream {
+                xs: &xs,
+                grad_out: &go,
+                nl: a.levels.len(),
+                nf,
+            };
+            ga.step += 1;
+            let (ca, cb) = (aa.advance(1e-2), ab.advance(1e-2));
+            let levels = a.levels.clone();
+            let mut gl = split_levels(&levels, nf, &mut ga.values);
+            let mut kl = split_levels(&levels, 1, &mut ga.mark);
+            let (mut pa, mut ma, mut va) = (
+                split_levels(&levels, nf, &mut a.table),
+                split_levels(&levels, nf, &mut aa.m),
+                split_levels(&levels, nf, &mut aa.v),
+            );
+            let (mut pb, mut mb, mut vb) = (
+                split_levels(&levels, nf, &mut b.table),
+                split_levels(&levels, nf, &mut ab.m),
+                split_levels(&levels, nf, &mut ab.v),
+            );
+            for (l, level) in levels.iter().enumerate() {
+                let a_parts = (&mut *pa[l], &mut *ma[l], &mut *va[l]);
+                dense_adam_level(&ca, level, l, &up, a_parts, gl[l], kl[l], ga.step);
+                let b_parts = (&mut *pb[l], &mut *mb[l], &mut *vb[l]);
+                sorted_adam_level(&cb, level, l, &up, b_parts);
+            }
+            assert!(ga.values.iter().all(|v| *v == 0.0));
+        }
+        assert_eq!(a.table, b.table);
+        assert_eq!((&aa.m, &aa.v), (&ab.m, &ab.v));
+        assert_ne!(a.table, g0.table);
+        // A level of 2^18 entries and few points takes the sorted way.
+        let mut big = HashGridConfig::new()
+            .with_levels(3)
+            .with_log2_table(18)
+            .with_base_resolution(16.0)
+            .with_per_level_scale(8.0)
+            .init(6);
+        assert!(big.levels.iter().any(|l| !dense_update(l, 50)));
+        assert!(big.levels.iter().any(|l| dense_update(l, 50)));
+        let mut sep = big.clone();
+        let xs = points(50, 77);
+        let go: Vec<f32> = (0..xs.len() * big.output_dim())
+            .map(|_| r.next_f32() - 0.5)
+            .collect();
+        let (mut g1, mut g2) = (TableGrad::new(&big), TableGrad::new(&sep));
+        let mut a1 = TableAdam::new(&big, 0.9, 0.99, 1e-8);
+        let mut a2 = TableAdam::new(&sep, 0.9, 0.99, 1e-8);
+        big.backward_adam(&xs, &go, &mut g1, &mut a1, 1e-2);
+        sep.backward_table(&xs, &go, &mut g2);
+        a2.step(&mut sep, &mut g2, 1e-2);
+        assert_eq!(big.table, sep.table);
     }
 
     #[test]
