@@ -289,7 +289,12 @@ fn cell(level: &Level, x: [f32; 3]) -> Cell {
     Cell { idx, w, frac }
 }
 
-/// Batches from this size on are encoded level by level in entry order.
+/// Entries of a level whose table, gradient and marks stay in a core's L2 cache (1 MiB at 2
+/// features): such a level is read and updated in point order (`encode_level_direct`,
+/// `dense_adam_level`) rather than by sorting its touches.
+const L2_LEVEL: usize = 1 << 17;
+
+/// Batches from this size on are encoded level by level (larger levels in entry order).
 const SORTED_ENCODE_MIN: usize = 2048;
 
 /// Σ_k w[k]·value(k) in corner order (the one summation order every encode path uses).
@@ -364,7 +369,13 @@ impl HashGrid {
         let per_level: Vec<Vec<f32>> = self
             .levels
             .par_iter()
-            .map(|level| self.encode_level_sorted(level, xs))
+            .map(|level| {
+                if level.size <= L2_LEVEL {
+                    self.encode_level_direct(level, xs)
+                } else {
+                    self.encode_level_sorted(level, xs)
+                }
+            })
             .collect();
         out.par_chunks_mut(nl * nf)
             .enumerate()
@@ -382,6 +393,22 @@ impl HashGrid {
     fn level_table(&self, level: &Level) -> &[f32] {
         let nf = self.features;
         &self.table[level.offset * nf..(level.offset + level.size) * nf]
+    }
+
+    /// One level's encoding (`n × features`), reading the table in point order: for a level
+    /// that stays in a core's L2 cache (`L2_LEVEL`), where sorting the reads costs more than
+    /// their misses.
+    fn encode_level_direct(&self, level: &Level, xs: &[[f32; 3]]) -> Vec<f32> {
+        let nf = self.features;
+        let t = self.level_table(level);
+        let mut out = vec![0f32; xs.len() * nf];
+        for (o, &x) in out.chunks_exact_mut(nf).zip(xs) {
+            let c = cell(level, x);
+            for (f, of) in o.iter_mut().enumerate() {
+                *of = blend(&c.w, |k| t[c.idx[k] as usize * nf + f]);
+            }
+        }
+        out
     }
 
     /// One level's encoding (`n × features`), reading the table in entry order.
@@ -747,7 +774,7 @@ fn scatter_level(
 /// marks stay in a core's L2 cache (≤ 2^17 entries, 1 MiB at 2 features), or where the touches
 /// outnumber half its entries, a scatter and one sweep over the level beat the sort.
 fn dense_update(level: &Level, points: usize) -> bool {
-    level.size <= 1 << 17 || level.size <= 2 * 8 * points
+    level.size <= L2_LEVEL || level.size <= 2 * 8 * points
 }
 
 /// One level of the fused backward + Adam through the level's dense gradient: every corner
@@ -1056,6 +1083,24 @@ mod tests {
             .flat_map(|c| g.encode(c))
             .collect();
         assert_eq!(whole, parts);
+        // Both large-batch paths of a level (entry order, point order) give the same bits.
+        for level in &g.levels {
+            assert_eq!(
+                g.encode_level_sorted(level, &xs),
+                g.encode_level_direct(level, &xs)
+            );
+        }
+        // A level too large for L2 is read in entry order, and still equals the point path.
+        let big = HashGridConfig::new()
+            .with_levels(2)
+            .with_log2_table(18)
+            .with_base_resolution(16.0)
+            .with_per_level_scale(8.0)
+            .init(6);
+        assert!(big.levels.iter().any(|l| l.size > L2_LEVEL));
+        let xs = points(SORTED_ENCODE_MIN, 22);
+        let small_batches: Vec<f32> = xs.chunks(100).flat_map(|c| big.encode(c)).collect();
+        assert_eq!(big.encode(&xs), small_batches);
     }
 
     #[test]
