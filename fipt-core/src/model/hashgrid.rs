@@ -804,49 +804,41 @@ fn dense_adam_level(
             }
         }
     }
+    // The feature count a constant where it is the usual 2, so that the sweep vectorises.
     if nf == 2 {
-        sweep::<2>(c, (p, m, v), gv, mark, stamp);
+        sweep(c, (p, m, v), gv, mark, stamp, 2);
     } else {
-        for (e, &mk) in mark.iter().enumerate() {
-            if mk == stamp {
-                for j in e * nf..(e + 1) * nf {
-                    c.apply(&mut p[j], &mut m[j], &mut v[j], gv[j]);
-                    gv[j] = 0.0;
-                }
-            }
-        }
+        sweep(c, (p, m, v), gv, mark, stamp, nf);
     }
 }
 
-/// Adam on the entries of one level marked `stamp` (`NF` features each), without branches:
-/// every entry's update is computed (`AdamCoef::apply`'s operations, in its order) and kept
-/// where marked, so the loop vectorises and the kept values are `apply`'s to the bit. The
-/// gradient is zeroed everywhere (unmarked entries hold zero already).
-fn sweep<const NF: usize>(
+/// Adam on the entries of one level marked `stamp` (`nf` features each), without branches:
+/// every entry's update is computed (`AdamCoef::apply` on copies) and kept where marked, so the
+/// loop vectorises and the kept values are `apply`'s. The gradient is zeroed everywhere
+/// (unmarked entries hold zero already).
+#[inline(always)]
+fn sweep(
     c: &AdamCoef,
     (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
     gv: &mut [f32],
     mark: &[u32],
     stamp: u32,
+    nf: usize,
 ) {
-    let (b1, b2, c1, c2, lr, eps) = (c.b1, c.b2, c.c1, c.c2, c.lr, c.eps);
-    let (a1, a2) = (1.0 - b1, 1.0 - b2);
     for ((((pe, me), ve), ge), &mk) in p
-        .chunks_exact_mut(NF)
-        .zip(m.chunks_exact_mut(NF))
-        .zip(v.chunks_exact_mut(NF))
-        .zip(gv.chunks_exact_mut(NF))
+        .chunks_exact_mut(nf)
+        .zip(m.chunks_exact_mut(nf))
+        .zip(v.chunks_exact_mut(nf))
+        .zip(gv.chunks_exact_mut(nf))
         .zip(mark)
     {
         let keep = mk == stamp;
-        for f in 0..NF {
-            let g = ge[f];
-            let mn = b1 * me[f] + a1 * g;
-            let vn = b2 * ve[f] + a2 * g * g;
-            let pn = pe[f] - lr * (mn / c1) / ((vn / c2).sqrt() + eps);
+        for f in 0..nf {
+            let (mut pn, mut mn, mut vn) = (pe[f], me[f], ve[f]);
+            c.apply(&mut pn, &mut mn, &mut vn, ge[f]);
+            pe[f] = if keep { pn } else { pe[f] };
             me[f] = if keep { mn } else { me[f] };
             ve[f] = if keep { vn } else { ve[f] };
-            pe[f] = if keep { pn } else { pe[f] };
             ge[f] = 0.0;
         }
     }

@@ -449,11 +449,12 @@ fn restore_set_aside(out: &Path) {
     }
 }
 
-/// The step a folder `stepN.prev` (the old state `save_again` sets aside) belongs to.
+/// The step folder a folder `stepN.prev` (the old state `save_again` sets aside) belongs to:
+/// a name `step_dirs` reads.
 fn replaced_step(name: &str) -> Option<&str> {
     let stem = name.strip_suffix(".prev")?;
-    (stem.starts_with("step") && stem.len() > 4 && stem[4..].bytes().all(|b| b.is_ascii_digit()))
-        .then_some(stem)
+    stem.strip_prefix("step")?.parse::<usize>().ok()?;
+    Some(stem)
 }
 
 fn clean(dir: &Path, recurse: bool) {
