@@ -360,7 +360,9 @@ fn bench_step(
 
 /// `bench step`: median time of one stage-2 training step at the reference model size and at a
 /// CPU-sized configuration (with `peer_sizes`, also at the peer scripts' `--cpu-config`), per
-/// backend.
+/// backend. `burn_nets`: the MLPs as burn graph ops on the CPU too (`TrainConfig::host_nets`
+/// off).
+#[allow(clippy::too_many_arguments)]
 pub fn step(
     backends: &[fipt_core::model::BackendKind],
     as_json: bool,
@@ -369,6 +371,7 @@ pub fn step(
     peer_sizes: bool,
     place: crate::config::GridPlace,
     modes: &[fipt_core::model::step::SegMode],
+    burn_nets: bool,
 ) -> Result<()> {
     use fipt_core::model::{HashGridConfig, MaterialFieldConfig, TrainConfig};
     let grid = |levels, log2_table, scale| {
@@ -395,21 +398,27 @@ pub fn step(
     for (name, cfg) in configs {
         for &b in backends {
             for &mode in modes {
-                let cfg = cfg.clone().with_device_grid(place.on_device(b));
+                // Where the MLPs ran (`Trainer`: fused on the host with the host grid on a CPU).
+                let fused = !burn_nets && !place.on_device(b) && !b.is_gpu();
+                let nets = if fused { "fused host" } else { "burn graph" };
+                let cfg = cfg
+                    .clone()
+                    .with_device_grid(place.on_device(b))
+                    .with_host_nets(!burn_nets);
                 let (times, params, phases, bytes) =
                     time_steps(cfg, b, &store, batch, 2, steps, mode)?;
                 let med = median(times.clone());
                 let loss = format!("{mode:?}").to_lowercase();
                 if !as_json {
                     println!(
-                        "{name:>10} {:>8} {loss:>8}: {:.1} ms/step (batch {batch}, {params} params) {phases} {bytes}",
+                        "{name:>10} {:>8} {loss:>8} ({nets} MLPs): {:.1} ms/step (batch {batch}, {params} params) {phases} {bytes}",
                         b.name(),
                         med * 1e3
                     );
                 }
                 rows.push(
                     json!({"config": name, "backend": b.name(), "seg_loss": loss,
-                    "batch": batch, "params": params, "median_s": med, "times_s": times,
+                    "nets": nets, "batch": batch, "params": params, "median_s": med, "times_s": times,
                     "phases_mean_s": phases, "transfer": bytes}),
                 );
             }

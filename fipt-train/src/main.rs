@@ -346,6 +346,10 @@ enum BenchCmd {
         /// Time only the part loss (the default config's) instead of both segmentation losses.
         #[arg(long)]
         part_only: bool,
+        /// Run the MLPs as burn graph ops on the CPU too, instead of the fused host MLPs (for
+        /// comparison).
+        #[arg(long)]
+        burn_nets: bool,
     },
 }
 
@@ -622,6 +626,7 @@ fn main() {
                 peer_sizes,
                 grid,
                 part_only,
+                burn_nets,
             } => {
                 let b = if backend.is_empty() {
                     vec![BackendKind::Flex]
@@ -635,7 +640,7 @@ fn main() {
                     } else {
                         &[SegMode::Part, SegMode::Semantic]
                     };
-                    bench::step(&b, json, batch, steps, peer_sizes, grid, modes)
+                    bench::step(&b, json, batch, steps, peer_sizes, grid, modes, burn_nets)
                 }
             }
         },

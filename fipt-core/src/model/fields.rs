@@ -1,14 +1,17 @@
 //! The two neural fields of paper Eq. 14: the material field (hash grid → MLP → a, σ, m) and
 //! the emission mask (positional encoding → 6×128 MLP with a skip at layer 3 → α).
 //!
-//! Owns: the fields' configs, parameters and forward passes. Must not touch: losses, data.
+//! Owns: the fields' configs, parameters and forward passes, and their copies for the fused
+//! host MLPs (`to_host`, `register_host_grads`). Must not touch: losses, data.
 
 use super::hashgrid::{HashGrid, HashGridConfig};
+use super::host_mlp::{Dense, HostMlp, MlpGrads};
 use super::pe::{pe_dim, positional_encoding};
 use crate::rng::Rng;
 use burn::config::Config;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
+use burn::optim::GradientsParams;
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -84,6 +87,14 @@ impl Mlp {
         }
     }
 
+    /// The same network with its parameters copied to the host (`host_mlp`).
+    pub fn to_host(&self) -> HostMlp {
+        HostMlp {
+            layers: self.layers.iter().map(dense).collect(),
+            skip: None,
+        }
+    }
+
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let n = self.layers.len();
         for (i, l) in self.layers.iter().enumerate() {
@@ -93,6 +104,37 @@ impl Mlp {
             }
         }
         x
+    }
+}
+
+/// A layer's parameters copied to the host (`host_mlp`).
+fn dense(l: &Linear) -> Dense {
+    let [input, output] = l.weight.val().dims();
+    let host = |t: Tensor<1>| t.try_into_vec_as::<f32>().expect("f32 parameter");
+    Dense {
+        input,
+        output,
+        weight: host(l.weight.val().reshape([input * output])),
+        bias: l.bias.as_ref().map(|b| host(b.val())),
+    }
+}
+
+/// Registers host gradients `g` of `layers` (in order) in `gp`, as tensors on `device` (the
+/// plain device burn's optimiser reads gradients on).
+pub fn register_host_grads(
+    layers: &[&Linear],
+    g: &MlpGrads,
+    gp: &mut GradientsParams,
+    device: &Device,
+) {
+    for ((l, w), b) in layers.iter().zip(&g.weight).zip(&g.bias) {
+        let [input, output] = l.weight.val().dims();
+        let t = Tensor::<2>::from_data(TensorData::new(w.clone(), [input, output]), device);
+        gp.register(l.weight.id, t);
+        if let (Some(p), Some(b)) = (&l.bias, b) {
+            let t = Tensor::<1>::from_data(TensorData::new(b.clone(), [b.len()]), device);
+            gp.register(p.id, t);
+        }
     }
 }
 
@@ -231,6 +273,20 @@ impl EmissionMaskConfig {
 }
 
 impl EmissionMask {
+    /// The layers in order, the output layer last.
+    pub fn all_layers(&self) -> Vec<&Linear> {
+        self.layers.iter().chain([&self.out]).collect()
+    }
+
+    /// The same network with its parameters copied to the host (`host_mlp`); it reads the
+    /// positional encoding (`host_mlp::positional_encoding_host`), not positions.
+    pub fn to_host(&self) -> HostMlp {
+        HostMlp {
+            layers: self.all_layers().into_iter().map(dense).collect(),
+            skip: (self.skip > 0 && self.skip < self.layers.len()).then_some(self.skip),
+        }
+    }
+
     /// Raw mask output [N,1] at world positions `x` [N,3].
     pub fn raw(&self, x: Tensor<2>) -> Tensor<2> {
         let pe = positional_encoding(x, self.freqs);

@@ -11,6 +11,7 @@ pub mod gather;
 pub mod hashgrid;
 pub mod hashgrid_device;
 pub mod hashgrid_tensor;
+pub mod host_mlp;
 pub mod loss;
 pub mod pe;
 pub mod render;

@@ -9,18 +9,24 @@
 //!   device too, so a step uploads only its batch's indices and its losses are read back only
 //!   when the caller asks (`StepLoss`).
 //!
-//! The MLPs use burn's Adam on both paths.
+//! On the host path on a CPU device (`TrainConfig::host_nets`), the two MLPs run as fused host
+//! kernels too (`host_mlp`): their outputs enter the graph as leaves, and the leaves' gradients
+//! are carried back through the networks on the host. Elsewhere they are burn graph ops.
+//!
+//! The MLPs use burn's Adam on every path.
 //!
 //! Owns: `TrainConfig`, `Batch`, `Trainer::step`. Must not touch: pixel sampling, data loading.
 
 use super::brdf::reflectances;
 use super::fields::{
-    EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material, sigma_metallic_logits,
+    EmissionMaskConfig, MaterialFieldConfig, alpha_from_raw, decode_material, register_host_grads,
+    sigma_metallic_logits,
 };
 use super::fipt_model::{FiptModel, ModelSpec, TableFormat};
 use super::gather::{index_tensor, select_int_dev, select_rows_dev};
 use super::hashgrid::{TableAdam, TableGrad};
 use super::hashgrid_device::{self, GridTables};
+use super::host_mlp::{HostMlp, Tape, positional_encoding_host};
 use super::loss;
 use super::render::{Shadings, composite, render};
 use super::transfer;
@@ -102,6 +108,10 @@ pub struct TrainConfig {
     /// dense Adam as device tensors) instead of the fused host op with its sparse Adam.
     #[config(default = false)]
     pub device_grid: bool,
+    /// On the host grid's path on a CPU device, run both MLPs as fused host kernels
+    /// (`host_mlp`) rather than as burn graph ops; the same step within float rounding.
+    #[config(default = true)]
+    pub host_nets: bool,
 }
 
 /// A batch of training pixels as plain host arrays.
@@ -368,9 +378,10 @@ pub struct StepProfile {
     /// The batch's upload (or gather from the device store) and the hash-grid encoding (on the
     /// host, or queued on the device).
     pub encode: f64,
-    /// Tensor forward: MLPs, renderer, losses.
+    /// Forward: MLPs (fused host ones included), renderer, losses.
     pub forward: f64,
-    /// Autodiff backward and, on the host path, reading the encoding gradient.
+    /// Autodiff backward and, on the host path, reading the encoding gradient (through the
+    /// fused host MLPs' backward where they run).
     pub backward: f64,
     /// The table's update: the host path's backward scatter and sparse Adam, or the device
     /// path's dense Adam.
@@ -397,13 +408,56 @@ fn download(t: Tensor<2>) -> Vec<f32> {
     v
 }
 
-/// What the forward pass leaves for the backward: the host grid's encoding leaf and the batch's
-/// positions its backward scatters at (none on the device path), the total loss and the loss
-/// parts (detached, on the device).
+/// What the forward pass leaves for the backward: on the host grid's path, the batch's positions
+/// the table's backward scatters at and where the encoding's gradient comes from; the total
+/// loss and the loss parts (detached, on the device).
 struct Forward<'a> {
-    enc_leaf: Option<(Tensor<2>, Cow<'a, [[f32; 3]]>)>,
+    grid: Option<(HostGridLeaf, Cow<'a, [[f32; 3]]>)>,
     total: Tensor<1>,
     parts: Tensor<1>,
+}
+
+/// Where the host grid's encoding gradient is read.
+enum HostGridLeaf {
+    /// The encoding is a leaf of the graph (burn's MLPs).
+    Encoding(Box<Tensor<2>>),
+    /// The fused host MLPs: their outputs are the graph's leaves.
+    Nets(Box<HostNets>),
+}
+
+/// The fused host networks between forward and backward: each one's input, the network, its
+/// tape and its output as a leaf of the graph.
+struct HostNets {
+    enc: Vec<f32>,
+    material: HostMlp,
+    material_tape: Tape,
+    raw_material: Tensor<2>,
+    pe: Vec<f32>,
+    emission: HostMlp,
+    emission_tape: Tape,
+    raw_emission: Tensor<2>,
+}
+
+/// The encoding's gradient (N × `output_dim`) with the batch's unit-cube positions.
+type EncodingGrad<'a> = (Vec<f32>, Cow<'a, [[f32; 3]]>);
+
+/// What the backward gives: burn's gradients, the encoding's gradient with the batch's positions
+/// (host grid) and, from the fused host networks, their parameter gradients.
+struct Backward<'a> {
+    grads: burn::tensor::Gradients,
+    enc: Option<EncodingGrad<'a>>,
+    host_nets: Option<GradientsParams>,
+}
+
+/// Whether `device` runs on the host CPU (flex, or ndarray where built).
+fn is_cpu(device: &Device) -> bool {
+    let plain = device.clone().inner();
+    #[cfg(feature = "ndarray")]
+    #[allow(deprecated)]
+    if plain == Device::ndarray() {
+        return true;
+    }
+    plain == Device::flex()
 }
 
 impl Trainer {
@@ -603,25 +657,51 @@ impl Trainer {
             GridOpt::Device { .. } => self.model.device_grid.as_ref(),
             GridOpt::Host { .. } => None,
         };
-        let (enc, enc_leaf) = match device_tables {
-            Some(tables) => (
-                hashgrid_device::encode(&self.model.grid.levels, tables, px.t.x_unit.clone()),
-                None,
-            ),
+        let fused = device_tables.is_none() && self.cfg.host_nets && is_cpu(&dev);
+        // The end of the encoding (the networks count as forward on every path).
+        let t1;
+        let (raw_mat, raw, grid) = match device_tables {
+            Some(tables) => {
+                let enc =
+                    hashgrid_device::encode(&self.model.grid.levels, tables, px.t.x_unit.clone());
+                t1 = Instant::now();
+                let raw_mat = self.model.nets.material.forward(enc);
+                let raw = self.model.nets.emission.raw(px.t.x_world.clone());
+                (raw_mat, raw, None)
+            }
+            None if fused => {
+                let xs = host_positions(&px);
+                let enc = self.model.grid.encode(&xs);
+                t1 = Instant::now();
+                let nets = self.host_nets_forward(enc, &px);
+                let leaf = HostGridLeaf::Nets(Box::new(nets));
+                let HostGridLeaf::Nets(h) = &leaf else {
+                    unreachable!()
+                };
+                (
+                    h.raw_material.clone(),
+                    h.raw_emission.clone(),
+                    Some((leaf, xs)),
+                )
+            }
             None => {
                 let xs = host_positions(&px);
                 let d = self.model.grid.output_dim();
                 let enc = upload2(self.model.grid.encode(&xs), [n, d], &dev).require_grad();
-                (enc.clone(), Some((enc, xs)))
+                t1 = Instant::now();
+                let raw_mat = self.model.nets.material.forward(enc.clone());
+                let raw = self.model.nets.emission.raw(px.t.x_world.clone());
+                (
+                    raw_mat,
+                    raw,
+                    Some((HostGridLeaf::Encoding(Box::new(enc)), xs)),
+                )
             }
         };
-        let t1 = Instant::now();
-        let raw_mat = self.model.nets.material.forward(enc.clone());
         let mat = decode_material(raw_mat.clone());
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
         let sh = Shadings::from_packed(px.t.shadings.clone());
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
-        let raw = self.model.nets.emission.raw(px.t.x_world.clone());
         let alpha = alpha_from_raw(raw.clone());
         let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
@@ -649,10 +729,76 @@ impl Trainer {
         let p = &mut self.profile;
         p.encode += (t1 - t0).as_secs_f64();
         p.forward += t1.elapsed().as_secs_f64();
-        Forward {
-            enc_leaf,
-            total,
-            parts,
+        Forward { grid, total, parts }
+    }
+
+    /// The fused host networks' forward on the batch: the material MLP on the encoding `enc`,
+    /// the emission mask on the positional encoding of the batch's world positions, each
+    /// output uploaded as a leaf of the graph.
+    fn host_nets_forward(&self, enc: Vec<f32>, px: &Pixels) -> HostNets {
+        let dev = &self.device;
+        let nets = &self.model.nets;
+        let xw = host_points(px.host.map(|b| &b.x_world[..]), &px.t.x_world);
+        let n = xw.len();
+        let material = nets.material.to_host();
+        let (out, material_tape) = material.forward(&enc);
+        let raw_material = upload2(out, [n, material.output()], dev).require_grad();
+        let pe = positional_encoding_host(&xw, nets.emission.freqs);
+        let emission = nets.emission.to_host();
+        let (out, emission_tape) = emission.forward(&pe);
+        let raw_emission = upload2(out, [n, emission.output()], dev).require_grad();
+        HostNets {
+            enc,
+            material,
+            material_tape,
+            raw_material,
+            pe,
+            emission,
+            emission_tape,
+            raw_emission,
+        }
+    }
+
+    /// The backward from `f.total`; with the fused host networks, through them on the host.
+    fn backward<'a>(&self, f: Forward<'a>) -> Backward<'a> {
+        let grads = f.total.backward();
+        let Some((leaf, xs)) = f.grid else {
+            return Backward {
+                grads,
+                enc: None,
+                host_nets: None,
+            };
+        };
+        match leaf {
+            HostGridLeaf::Encoding(enc) => {
+                let g = download(enc.grad(&grads).expect("encoding is a leaf of the graph"));
+                Backward {
+                    grads,
+                    enc: Some((g, xs)),
+                    host_nets: None,
+                }
+            }
+            HostGridLeaf::Nets(h) => {
+                let leaf_grad = |t: &Tensor<2>| {
+                    let n = t.dims()[0] * t.dims()[1];
+                    t.grad(&grads).map_or_else(|| vec![0.0; n], download)
+                };
+                let g_mat = leaf_grad(&h.raw_material);
+                let g_em = leaf_grad(&h.raw_emission);
+                let (gm, d_enc) = h.material.backward(&h.enc, &h.material_tape, &g_mat, true);
+                let (ge, _) = h.emission.backward(&h.pe, &h.emission_tape, &g_em, false);
+                let plain = self.device.clone().inner();
+                let nets = &self.model.nets;
+                let mut gp = GradientsParams::new();
+                let material: Vec<&burn::nn::Linear> = nets.material.layers.iter().collect();
+                register_host_grads(&material, &gm, &mut gp, &plain);
+                register_host_grads(&nets.emission.all_layers(), &ge, &mut gp, &plain);
+                Backward {
+                    grads,
+                    enc: Some((d_enc.expect("asked for"), xs)),
+                    host_nets: Some(gp),
+                }
+            }
         }
     }
 
@@ -665,12 +811,10 @@ impl Trainer {
     /// device path leaves it on the device (`Pending`) for the caller to read when it logs.
     pub fn step_on(&mut self, input: StepInput, mode: SegMode) -> StepLoss {
         let f = self.forward(input, mode);
+        let parts = f.parts.clone();
         let t2 = Instant::now();
-        let mut grads = f.total.backward();
-        let g_enc = f.enc_leaf.map(|(enc, xs)| {
-            let g = enc.grad(&grads).expect("encoding is a leaf of the graph");
-            (download(g), xs)
-        });
+        let b = self.backward(f);
+        let (mut grads, g_enc) = (b.grads, b.enc);
         let t3 = Instant::now();
         let lr = self.cfg.lr;
         let m = &mut self.model;
@@ -688,7 +832,10 @@ impl Trainer {
             _ => unreachable!("the grid's optimiser matches where the table lives"),
         }
         let t4 = Instant::now();
-        let gp = GradientsParams::from_grads(grads, &self.model.nets);
+        let gp = match b.host_nets {
+            Some(gp) => gp,
+            None => GradientsParams::from_grads(grads, &self.model.nets),
+        };
         self.model.nets = self.optim.step(lr, self.model.nets.clone(), gp);
         let t5 = Instant::now();
         let p = &mut self.profile;
@@ -699,11 +846,11 @@ impl Trainer {
         self.steps += 1;
         if self.device_resident() {
             // Read later, with others (`StepLoss::read_all`).
-            StepLoss::Pending(Box::new(f.parts))
+            StepLoss::Pending(Box::new(parts))
         } else {
             transfer::download(5 * 4);
             StepLoss::Ready(LossParts::from_slice(
-                &f.parts.try_into_vec_as::<f32>().expect("f32 losses"),
+                &parts.try_into_vec_as::<f32>().expect("f32 losses"),
             ))
         }
     }
@@ -714,13 +861,13 @@ impl Trainer {
     /// order (host). For parity tests across backends and paths, and for diagnostics.
     pub fn gradients(&mut self, batch: &Batch, mode: SegMode) -> StepGradients {
         let f = self.forward(StepInput::Host(batch), mode);
-        let grads = f.total.backward();
-        let parts = LossParts::from_slice(&f.parts.try_into_vec_as::<f32>().expect("f32"));
-        let (encoding, table) = match (&f.enc_leaf, &self.model.device_grid) {
-            (Some((enc, xs)), _) => {
-                let g = download(enc.grad(&grads).expect("encoding is a leaf"));
+        let parts = LossParts::from_slice(&f.parts.clone().try_into_vec_as::<f32>().expect("f32"));
+        let b = self.backward(f);
+        let grads = b.grads;
+        let (encoding, table) = match (b.enc, &self.model.device_grid) {
+            (Some((g, xs)), _) => {
                 let mut tg = TableGrad::new(&self.model.grid);
-                self.model.grid.backward_table(xs, &g, &mut tg);
+                self.model.grid.backward_table(&xs, &g, &mut tg);
                 (g, tg.values)
             }
             (None, Some(tables)) => {
@@ -737,6 +884,7 @@ impl Trainer {
         };
         let mut visitor = ParamGrads {
             grads: &grads,
+            host: b.host_nets.as_ref(),
             out: Vec::new(),
         };
         self.model.nets.visit(&mut visitor);
@@ -816,10 +964,15 @@ impl Trainer {
 
 /// The batch's unit-cube positions on the host: from the host batch, else read back.
 fn host_positions<'a>(px: &Pixels<'a>) -> Cow<'a, [[f32; 3]]> {
-    match px.host {
-        Some(b) => Cow::Borrowed(&b.x_unit),
+    host_points(px.host.map(|b| &b.x_unit[..]), &px.t.x_unit)
+}
+
+/// Points on the host: `host` where the batch is there, else `t` read back.
+fn host_points<'a>(host: Option<&'a [[f32; 3]]>, t: &Tensor<2>) -> Cow<'a, [[f32; 3]]> {
+    match host {
+        Some(b) => Cow::Borrowed(b),
         None => Cow::Owned(
-            download(px.t.x_unit.clone())
+            download(t.clone())
                 .chunks_exact(3)
                 .map(|c| [c[0], c[1], c[2]])
                 .collect(),
@@ -839,8 +992,10 @@ pub struct StepGradients {
     pub params: Vec<Vec<f32>>,
 }
 
+/// Each parameter's gradient, from the fused host networks' (`host`) or from burn's graph.
 struct ParamGrads<'a> {
     grads: &'a burn::tensor::Gradients,
+    host: Option<&'a GradientsParams>,
     out: Vec<Vec<f32>>,
 }
 
@@ -848,7 +1003,8 @@ impl ModuleVisitor for ParamGrads<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         let v = param.val();
         let n = v.shape().num_elements();
-        self.out.push(match v.grad(self.grads) {
+        let host = self.host.and_then(|h| h.get::<D>(param.id));
+        self.out.push(match host.or_else(|| v.grad(self.grads)) {
             Some(g) => g.try_into_vec_as::<f32>().expect("f32 gradient"),
             None => vec![0.0; n],
         });

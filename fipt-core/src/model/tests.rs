@@ -392,3 +392,100 @@ fn device_grid_step_matches_host_step() {
         }
     }
 }
+
+/// Largest |a − b| over the largest |b| (at least 1e-6).
+fn max_rel(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+}
+
+/// burn's autodiff gradient of Σ out ⊙ g for every parameter of `layers`, weights flat.
+fn burn_layer_grads(
+    layers: &[&burn::nn::Linear],
+    grads: &burn::tensor::Gradients,
+) -> Vec<(Vec<f32>, Option<Vec<f32>>)> {
+    let host = |t: Tensor<1>| t.try_into_vec_as::<f32>().unwrap();
+    layers
+        .iter()
+        .map(|l| {
+            let [i, o] = l.weight.val().dims();
+            let w = host(l.weight.val().grad(grads).unwrap().reshape([i * o]));
+            let b = l.bias.as_ref().map(|b| host(b.val().grad(grads).unwrap()));
+            (w, b)
+        })
+        .collect()
+}
+
+/// The fused host emission mask (positional encoding, skip layer, biases) against burn's graph:
+/// the output and every parameter gradient of Σ raw ⊙ g, over a batch of two gradient groups
+/// with a partial block.
+#[test]
+fn host_emission_mask_matches_burn() {
+    use super::fields::EmissionMaskConfig;
+    use super::host_mlp::positional_encoding_host;
+    let ad = dev().autodiff();
+    let mask = EmissionMaskConfig::new()
+        .with_width(48)
+        .with_depth(5)
+        .with_skip(2)
+        .with_freqs(6)
+        .init(&ad, 5);
+    let n = 1300;
+    let xw = uniform(3 * n, -2.0, 2.5, 1);
+    let g = uniform(n, -1.0, 1.0, 2);
+    let raw = mask.raw(t2(&xw, [n, 3], &ad));
+    let grads = (raw.clone() * t2(&g, [n, 1], &ad)).sum().backward();
+    let want = burn_layer_grads(&mask.all_layers(), &grads);
+
+    let host = mask.to_host();
+    host.check().unwrap();
+    assert_eq!(host.skip, Some(2));
+    let pts: Vec<[f32; 3]> = xw.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let pe = positional_encoding_host(&pts, 6);
+    let (out, tape) = host.forward(&pe);
+    let e = max_rel(&out, &to_vec(raw));
+    assert!(e < 1e-5, "output differs by {e}");
+    let (got, dx) = host.backward(&pe, &tape, &g, false);
+    assert!(dx.is_none());
+    for (k, (w, b)) in want.iter().enumerate() {
+        let e = max_rel(&got.weight[k], w);
+        assert!(e < 1e-4, "layer {k}: weight gradient differs by {e}");
+        let e = max_rel(got.bias[k].as_ref().unwrap(), b.as_ref().unwrap());
+        assert!(e < 1e-4, "layer {k}: bias gradient differs by {e}");
+    }
+    // A skip the gradient did not reach would leave the rows for the encoding at zero.
+    let skip_rows = &got.weight[2][..pe.len() / n * 48];
+    assert!(skip_rows.iter().any(|v| v.abs() > 1e-3));
+}
+
+/// The fused host material MLP (no biases) against burn's graph, including the gradient with
+/// respect to its input (the hash-grid encoding).
+#[test]
+fn host_material_mlp_matches_burn_with_input_gradient() {
+    use super::fields::Mlp;
+    let ad = dev().autodiff();
+    let mlp = Mlp::tcnn(&[32, 64, 64, 5], 9, &ad);
+    let n = 777;
+    let x = uniform(32 * n, -0.5, 0.5, 3);
+    let g = uniform(5 * n, -1.0, 1.0, 4);
+    let xt = t2(&x, [n, 32], &ad).require_grad();
+    let out = mlp.forward(xt.clone());
+    let grads = (out.clone() * t2(&g, [n, 5], &ad)).sum().backward();
+    let layers: Vec<&burn::nn::Linear> = mlp.layers.iter().collect();
+    let want = burn_layer_grads(&layers, &grads);
+    let want_dx = to_vec(xt.grad(&grads).unwrap());
+
+    let host = mlp.to_host();
+    let (hout, tape) = host.forward(&x);
+    let e = max_rel(&hout, &to_vec(out));
+    assert!(e < 1e-5, "output differs by {e}");
+    let (got, dx) = host.backward(&x, &tape, &g, true);
+    for (k, (w, _)) in want.iter().enumerate() {
+        let e = max_rel(&got.weight[k], w);
+        assert!(e < 1e-4, "layer {k}: weight gradient differs by {e}");
+        assert!(got.bias[k].is_none());
+    }
+    let e = max_rel(&dx.unwrap(), &want_dx);
+    assert!(e < 1e-4, "input gradient differs by {e}");
+}
