@@ -141,15 +141,21 @@ impl HostMlp {
                 return Err(format!("layer {i}: shapes do not chain"));
             }
         }
-        if self.skip == Some(0) {
-            return Err("the skip layer must be ≥ 1".into());
+        if self.skip.is_some_and(|k| k == 0 || k >= self.layers.len()) {
+            return Err("the skip layer must be ≥ 1 and one of the layers".into());
         }
         Ok(())
     }
 
     /// Forward over `x` (N × input, row-major): the output (N × output) and the tape the
     /// backward needs.
+    ///
+    /// # Panics
+    /// If the layers do not chain ([`HostMlp::check`]) or `x` is not whole rows.
     pub fn forward(&self, x: &[f32]) -> (Vec<f32>, Tape) {
+        if let Err(e) = self.check() {
+            panic!("HostMlp::forward: {e}");
+        }
         let din = self.input();
         assert_eq!(x.len() % din, 0, "input rows of {din}");
         let n = x.len() / din;
@@ -231,7 +237,10 @@ impl HostMlp {
     }
 
     /// Backward from `d_out` (N × output): the parameter gradients and, when `want_dx`, d loss
-    /// / d x (N × input).
+    /// / d x (N × input). `x` and `tape` are the forward's.
+    ///
+    /// # Panics
+    /// If `tape` is not from a forward of this network over `x`'s row count.
     pub fn backward(
         &self,
         x: &[f32],
@@ -243,6 +252,15 @@ impl HostMlp {
         let din = self.input();
         assert_eq!(x.len(), n * din, "input of the forward");
         assert_eq!(d_out.len(), n * self.output(), "output gradient rows");
+        // The tape must be this network's (its width per hidden layer bounds the reads below).
+        let widths = self.layers[..self.layers.len() - 1]
+            .iter()
+            .map(|l| n * l.output);
+        assert!(
+            tape.hidden.len() + 1 == self.layers.len()
+                && tape.hidden.iter().map(Vec::len).eq(widths),
+            "a tape of another network"
+        );
         let mut dx = want_dx.then(|| vec![0.0; n * din]);
         let dxp = dx.as_mut().map(|d| Rows(d.as_mut_ptr()));
         let partials: Vec<MlpGrads> = (0..n.div_ceil(GROUP))

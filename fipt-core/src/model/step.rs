@@ -646,8 +646,9 @@ impl Trainer {
         Ok(t)
     }
 
-    /// The forward pass on `input`: the encoding leaf of the host grid, the total loss and the
-    /// loss parts.
+    /// The forward pass on `input`: what the backward needs on the host grid's path (its
+    /// positions, and the encoding or the fused networks' outputs as leaves), the total loss and
+    /// the loss parts.
     fn forward<'a>(&mut self, input: StepInput<'a>, mode: SegMode) -> Forward<'a> {
         let dev = self.device.clone();
         let t0 = Instant::now();
@@ -779,23 +780,29 @@ impl Trainer {
                 }
             }
             HostGridLeaf::Nets(h) => {
-                let leaf_grad = |t: &Tensor<2>| {
-                    let n = t.dims()[0] * t.dims()[1];
-                    t.grad(&grads).map_or_else(|| vec![0.0; n], download)
-                };
-                let g_mat = leaf_grad(&h.raw_material);
-                let g_em = leaf_grad(&h.raw_emission);
-                let (gm, d_enc) = h.material.backward(&h.enc, &h.material_tape, &g_mat, true);
-                let (ge, _) = h.emission.backward(&h.pe, &h.emission_tape, &g_em, false);
+                // A network whose output got no gradient gets none either (Adam skips its
+                // parameters, as it does on burn's graph), and passes none to the encoding.
                 let plain = self.device.clone().inner();
                 let nets = &self.model.nets;
                 let mut gp = GradientsParams::new();
-                let material: Vec<&burn::nn::Linear> = nets.material.layers.iter().collect();
-                register_host_grads(&material, &gm, &mut gp, &plain);
-                register_host_grads(&nets.emission.all_layers(), &ge, &mut gp, &plain);
+                let mut d_enc = vec![0.0; h.enc.len()];
+                if let Some(g) = h.raw_material.grad(&grads) {
+                    let (gm, dx) =
+                        h.material
+                            .backward(&h.enc, &h.material_tape, &download(g), true);
+                    let material: Vec<&burn::nn::Linear> = nets.material.layers.iter().collect();
+                    register_host_grads(&material, &gm, &mut gp, &plain);
+                    d_enc = dx.expect("asked for");
+                }
+                if let Some(g) = h.raw_emission.grad(&grads) {
+                    let (ge, _) = h
+                        .emission
+                        .backward(&h.pe, &h.emission_tape, &download(g), false);
+                    register_host_grads(&nets.emission.all_layers(), &ge, &mut gp, &plain);
+                }
                 Backward {
                     grads,
-                    enc: Some((d_enc.expect("asked for"), xs)),
+                    enc: Some((d_enc, xs)),
                     host_nets: Some(gp),
                 }
             }

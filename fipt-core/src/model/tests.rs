@@ -434,9 +434,11 @@ fn host_emission_mask_matches_burn() {
     let n = 1300;
     let xw = uniform(3 * n, -2.0, 2.5, 1);
     let g = uniform(n, -1.0, 1.0, 2);
-    let raw = mask.raw(t2(&xw, [n, 3], &ad));
+    let xt = t2(&xw, [n, 3], &ad).require_grad();
+    let raw = mask.raw(xt.clone());
     let grads = (raw.clone() * t2(&g, [n, 1], &ad)).sum().backward();
     let want = burn_layer_grads(&mask.all_layers(), &grads);
+    let want_dxw = to_vec(xt.grad(&grads).unwrap());
 
     let host = mask.to_host();
     host.check().unwrap();
@@ -446,8 +448,26 @@ fn host_emission_mask_matches_burn() {
     let (out, tape) = host.forward(&pe);
     let e = max_rel(&out, &to_vec(raw));
     assert!(e < 1e-5, "output differs by {e}");
-    let (got, dx) = host.backward(&pe, &tape, &g, false);
-    assert!(dx.is_none());
+    let (got, dx) = host.backward(&pe, &tape, &g, true);
+    // The input gradient (layer 0's and the skip layer's parts) carried through the encoding
+    // to the positions: d[x, sin(f x), cos(f x)]/dx = [1, f cos(f x), −f sin(f x)].
+    let dx = dx.unwrap();
+    let dim = pe.len() / n;
+    let mut dxw = vec![0f32; 3 * n];
+    for (i, p) in pts.iter().enumerate() {
+        let d = &dx[i * dim..(i + 1) * dim];
+        for k in 0..3 {
+            let mut v = d[k];
+            for l in 0..6 {
+                let f = (2f64.powi(l) * std::f64::consts::PI) as f32;
+                let (sn, cs) = (p[k] * f).sin_cos();
+                v += f * (cs * d[3 + 3 * l as usize + k] - sn * d[3 + 18 + 3 * l as usize + k]);
+            }
+            dxw[3 * i + k] = v;
+        }
+    }
+    let e = max_rel(&dxw, &want_dxw);
+    assert!(e < 1e-3, "input gradient differs by {e}");
     for (k, (w, b)) in want.iter().enumerate() {
         let e = max_rel(&got.weight[k], w);
         assert!(e < 1e-4, "layer {k}: weight gradient differs by {e}");
