@@ -332,7 +332,12 @@ fn time_steps(
     };
     let (up, down) = transfer::take();
     let k = steps.max(1) as f64;
-    let bytes = json!({"grid": if ds.is_some() { "device" } else { "host" },
+    let nets = if tr.fused_nets() {
+        "fused host"
+    } else {
+        "burn graph"
+    };
+    let bytes = json!({"grid": if ds.is_some() { "device" } else { "host" }, "nets": nets,
         "upload_bytes_per_step": up as f64 / k, "download_bytes_per_step": down as f64 / k});
     let p = tr.profile;
     let k = p.steps.max(1) as f64;
@@ -398,9 +403,6 @@ pub fn step(
     for (name, cfg) in configs {
         for &b in backends {
             for &mode in modes {
-                // Where the MLPs ran (`Trainer`: fused on the host with the host grid on a CPU).
-                let fused = !burn_nets && !place.on_device(b) && !b.is_gpu();
-                let nets = if fused { "fused host" } else { "burn graph" };
                 let cfg = cfg
                     .clone()
                     .with_device_grid(place.on_device(b))
@@ -409,6 +411,7 @@ pub fn step(
                     time_steps(cfg, b, &store, batch, 2, steps, mode)?;
                 let med = median(times.clone());
                 let loss = format!("{mode:?}").to_lowercase();
+                let nets = bytes["nets"].as_str().unwrap_or_default();
                 if !as_json {
                     println!(
                         "{name:>10} {:>8} {loss:>8} ({nets} MLPs): {:.1} ms/step (batch {batch}, {params} params) {phases} {bytes}",
@@ -418,7 +421,7 @@ pub fn step(
                 }
                 rows.push(
                     json!({"config": name, "backend": b.name(), "seg_loss": loss,
-                    "nets": nets, "batch": batch, "params": params, "median_s": med, "times_s": times,
+                    "batch": batch, "params": params, "median_s": med, "times_s": times,
                     "phases_mean_s": phases, "transfer": bytes}),
                 );
             }

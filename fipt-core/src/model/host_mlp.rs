@@ -55,6 +55,15 @@ pub struct MlpGrads {
     pub bias: Vec<Option<Vec<f32>>>,
 }
 
+/// One part of a layer's input, in the order of the layer's weight rows.
+#[derive(Clone, Copy)]
+enum Part {
+    /// The network's input x (layer 0, and the first rows of the skip layer).
+    Input,
+    /// The previous layer's output h.
+    Hidden,
+}
+
 /// A raw pointer that may cross into rayon tasks; every task writes disjoint rows.
 #[derive(Clone, Copy)]
 struct Rows(*mut f32);
@@ -147,6 +156,15 @@ impl HostMlp {
         Ok(())
     }
 
+    /// Layer i's input parts in the order of its weight rows: the skip layer reads [x, h].
+    fn parts(&self, i: usize) -> &'static [Part] {
+        match i {
+            0 => &[Part::Input],
+            i if Some(i) == self.skip => &[Part::Input, Part::Hidden],
+            _ => &[Part::Hidden],
+        }
+    }
+
     /// Forward over `x` (N × input, row-major): the output (N × output) and the tape the
     /// backward needs.
     ///
@@ -198,41 +216,29 @@ impl HostMlp {
         m: usize,
         dst: *mut f32,
     ) {
-        let l = &self.layers[i];
+        let (o, w) = (self.layers[i].output, self.layers[i].weight.as_ptr());
         let din = self.input();
-        let w = l.weight.as_ptr();
-        let xb = unsafe { x.as_ptr().add(r0 * din) };
-        let skip = Some(i) == self.skip;
-        unsafe {
-            // The network input's rows of W_i (layer 0, or the skip layer's first rows).
-            if i == 0 || skip {
-                mm(
-                    (m, l.output, din),
-                    dst,
-                    l.output,
-                    false,
-                    (xb, din, 1),
-                    (w, l.output, 1),
-                );
-            }
-            if i == 0 {
-                return;
-            }
-            let prev = self.layers[i - 1].output;
-            let hb = hp[i - 1].0.add(r0 * prev) as *const f32;
-            let (w_h, acc) = if skip {
-                (w.add(din * l.output), true)
-            } else {
-                (w, false)
+        // Each part of the input times its rows of W_i, summed into dst.
+        let mut row = 0;
+        for (k, part) in self.parts(i).iter().enumerate() {
+            let (a, width) = match part {
+                Part::Input => (unsafe { x.as_ptr().add(r0 * din) }, din),
+                Part::Hidden => {
+                    let prev = self.layers[i - 1].output;
+                    (unsafe { hp[i - 1].0.add(r0 * prev) as *const f32 }, prev)
+                }
             };
-            mm(
-                (m, l.output, prev),
-                dst,
-                l.output,
-                acc,
-                (hb, prev, 1),
-                (w_h, l.output, 1),
-            );
+            unsafe {
+                mm(
+                    (m, o, width),
+                    dst,
+                    o,
+                    k > 0,
+                    (a, width, 1),
+                    (w.add(row * o), o, 1),
+                )
+            };
+            row += width;
         }
     }
 
@@ -341,37 +347,46 @@ impl HostMlp {
                 }
             }
             let dw = acc.weight[i].as_mut_ptr();
-            let skip = Some(i) == self.skip;
-            // SAFETY: all matrices lie inside their buffers; dW, dh and dx are distinct from
-            // the inputs they are computed from.
-            unsafe {
-                // The network input's rows of W_i (layer 0, or the skip layer's first rows).
-                if i == 0 || skip {
-                    mm((din, o, m), dw, o, true, (xb, 1, din), (dzp, o, 1));
-                    if let Some(dxb) = dx {
-                        mm((m, din, o), dxb, din, dx_written, (dzp, o, 1), (w, 1, o));
-                        dx_written = true;
+            // Per part of the input, with its rows of W_i: dW_rows += partᵀ·dz, and the part's
+            // gradient dz·W_rowsᵀ (into dx, which layer 0 and the skip layer both add to, or dh).
+            let mut row = 0;
+            for part in self.parts(i) {
+                let (a, width, d_part, accumulate) = match part {
+                    Part::Input => (xb, din, dx, dx_written),
+                    Part::Hidden => {
+                        let prev = self.layers[i - 1].output;
+                        let hb = tape.hidden[i - 1][r0 * prev..].as_ptr();
+                        (hb, prev, Some(dh.as_mut_ptr()), false)
+                    }
+                };
+                // SAFETY: all matrices lie inside their buffers; dW, dh and dx are distinct
+                // from the inputs they are computed from.
+                unsafe {
+                    let w_rows = w.add(row * o);
+                    mm(
+                        (width, o, m),
+                        dw.add(row * o),
+                        o,
+                        true,
+                        (a, 1, width),
+                        (dzp, o, 1),
+                    );
+                    if let Some(d) = d_part {
+                        mm(
+                            (m, width, o),
+                            d,
+                            width,
+                            accumulate,
+                            (dzp, o, 1),
+                            (w_rows, 1, o),
+                        );
                     }
                 }
-                if i == 0 {
-                    break;
-                }
-                let prev = self.layers[i - 1].output;
-                let hb = tape.hidden[i - 1][r0 * prev..].as_ptr();
-                let (dw_h, w_h) = if skip {
-                    (dw.add(din * o), w.add(din * o))
-                } else {
-                    (dw, w)
-                };
-                mm((prev, o, m), dw_h, o, true, (hb, 1, prev), (dzp, o, 1));
-                mm(
-                    (m, prev, o),
-                    dh.as_mut_ptr(),
-                    prev,
-                    false,
-                    (dzp, o, 1),
-                    (w_h, 1, o),
-                );
+                dx_written |= matches!(part, Part::Input) && dx.is_some();
+                row += width;
+            }
+            if i == 0 {
+                break;
             }
             // dz_{i−1} = dh ⊙ [h_{i−1} > 0].
             let prev = self.layers[i - 1].output;

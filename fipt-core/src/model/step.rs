@@ -528,6 +528,12 @@ impl Trainer {
         }
     }
 
+    /// Whether the step runs the MLPs as fused host kernels (`TrainConfig::host_nets`, with the
+    /// table on the host and a CPU device) rather than as burn graph ops.
+    pub fn fused_nets(&self) -> bool {
+        !self.device_resident() && self.cfg.host_nets && is_cpu(&self.device)
+    }
+
     /// Whether the table lives on the device (`TrainConfig::device_grid`).
     pub fn device_resident(&self) -> bool {
         matches!(self.grid_opt, GridOpt::Device { .. })
@@ -658,7 +664,7 @@ impl Trainer {
             GridOpt::Device { .. } => self.model.device_grid.as_ref(),
             GridOpt::Host { .. } => None,
         };
-        let fused = device_tables.is_none() && self.cfg.host_nets && is_cpu(&dev);
+        let fused = self.fused_nets();
         // The end of the encoding (the networks count as forward on every path).
         let t1;
         let (raw_mat, raw, grid) = match device_tables {
@@ -675,15 +681,8 @@ impl Trainer {
                 let enc = self.model.grid.encode(&xs);
                 t1 = Instant::now();
                 let nets = self.host_nets_forward(enc, &px);
-                let leaf = HostGridLeaf::Nets(Box::new(nets));
-                let HostGridLeaf::Nets(h) = &leaf else {
-                    unreachable!()
-                };
-                (
-                    h.raw_material.clone(),
-                    h.raw_emission.clone(),
-                    Some((leaf, xs)),
-                )
+                let (raw_mat, raw) = (nets.raw_material.clone(), nets.raw_emission.clone());
+                (raw_mat, raw, Some((HostGridLeaf::Nets(Box::new(nets)), xs)))
             }
             None => {
                 let xs = host_positions(&px);
