@@ -96,6 +96,41 @@ pub fn side_of(n: Vec3) -> usize {
     2 * axis + (n[axis] < 0.0) as usize
 }
 
+/// A voxel's L′ seen from a hit with normal `n`: the side `side_of(n)`'s mean where pixels saw
+/// it, else the count-weighted mean of the sides facing the same half-space, else 0.
+#[inline]
+fn seen_from(sides: &[[f32; 4]; 6], n: Vec3) -> Vec3 {
+    let own = sides[side_of(n)];
+    if own[3] > 0.0 {
+        return Vec3::new(own[0], own[1], own[2]);
+    }
+    let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
+    for (s, r) in sides.iter().enumerate() {
+        if r[3] > 0.0 && side_direction(s).dot(n) > 0.0 {
+            sum += Vec3::new(r[0], r[1], r[2]) * r[3];
+            weight += r[3];
+        }
+    }
+    if weight == 0.0 {
+        Vec3::ZERO
+    } else {
+        sum / weight
+    }
+}
+
+/// Asks the cache for the line holding `x` (a hint: no effect on results).
+#[inline(always)]
+fn prefetch<T>(x: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch reads nothing architecturally; `x` is a valid reference anyway.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>(x as *const T as *const i8);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
+}
+
 /// Unit direction of a side.
 #[inline]
 fn side_direction(side: usize) -> Vec3 {
@@ -275,24 +310,48 @@ impl LightField {
     /// else the count-weighted mean of the voxel's sides facing the same half-space; else 0.
     #[inline]
     pub fn query(&self, p: Vec3, n: Vec3) -> Vec3 {
-        let Some(sides) = self.voxel_sides(p) else {
-            return Vec3::ZERO;
-        };
-        let own = sides[side_of(n)];
-        if own[3] > 0.0 {
-            return Vec3::new(own[0], own[1], own[2]);
+        match self.voxel_sides(p) {
+            Some(sides) => seen_from(sides, n),
+            None => Vec3::ZERO,
         }
-        let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
-        for (s, r) in sides.iter().enumerate() {
-            if r[3] > 0.0 && side_direction(s).dot(n) > 0.0 {
-                sum += Vec3::new(r[0], r[1], r[2]) * r[3];
-                weight += r[3];
+    }
+
+    /// `query` of every `(p, n)` of `queries` into `out` (same length), bit for bit. A query
+    /// is three dependent reads (brick table, brick, voxel record) that mostly miss the cache
+    /// on a scene-sized grid; here each block of queries takes the reads one level at a time
+    /// and prefetches the next level for all of them, so their misses overlap instead of
+    /// queueing. In the bake this halves the time of the lookups.
+    pub fn query_many(&self, queries: &[(Vec3, Vec3)], out: &mut [Vec3]) {
+        assert_eq!(queries.len(), out.len(), "query_many: one output per query");
+        const BLOCK: usize = 64;
+        for (qs, os) in queries.chunks(BLOCK).zip(out.chunks_mut(BLOCK)) {
+            let mut at = [(EMPTY, 0u32); BLOCK];
+            for (a, &(p, _)) in at.iter_mut().zip(qs) {
+                let (t, l) = self.slot(self.voxel(p));
+                let b = self.top[t];
+                if b != EMPTY {
+                    prefetch(&self.bricks[b as usize][l]);
+                }
+                *a = (b, l as u32);
             }
-        }
-        if weight == 0.0 {
-            Vec3::ZERO
-        } else {
-            sum / weight
+            let mut rec = [EMPTY; BLOCK];
+            for (r, &(b, l)) in rec.iter_mut().zip(&at[..qs.len()]) {
+                if b != EMPTY {
+                    *r = self.bricks[b as usize][l as usize];
+                    if *r != EMPTY {
+                        let sides = &self.sides[*r as usize];
+                        prefetch(&sides[0]);
+                        prefetch(&sides[5]);
+                    }
+                }
+            }
+            for ((o, &(_, n)), &r) in os.iter_mut().zip(qs).zip(&rec) {
+                *o = if r == EMPTY {
+                    Vec3::ZERO
+                } else {
+                    seen_from(&self.sides[r as usize], n)
+                };
+            }
         }
     }
 
@@ -543,6 +602,44 @@ mod tests {
         // 26-neighbourhood of each observed voxel, shared cells counted once: 3×3 columns
         // x ∈ 2..=6, y ∈ 0..=1, z ∈ 0..=1 minus the two observed ones.
         assert_eq!(lf.filled(), 5 * 2 * 2 - 2);
+    }
+
+    /// The batched query is the single one, bit for bit, on 1000 queries (several blocks and
+    /// a partial one): occupied, filled and empty voxels, empty bricks, points outside the box
+    /// (clamped), own sides and half-space fallbacks.
+    #[test]
+    fn batched_queries_equal_single_ones() {
+        let b = SceneBox { min: 0.0, max: 1.0 };
+        let mut rng = fipt_core::rng::Rng::new(3, 9);
+        let dirs = [Vec3::X, -Vec3::Y, Vec3::Z, -Vec3::X];
+        // Observed points only in one corner (x, y, z < 0.3): most bricks stay empty.
+        let samples: Vec<_> = (0..300)
+            .map(|i| {
+                let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.3;
+                (p, dirs[i % 4], [rng.next_f32() * 9.0, 1.0 + i as f32, 0.25])
+            })
+            .collect();
+        let lf = LightField::build(b, 64, samples);
+        let queries: Vec<(Vec3, Vec3)> = (0..1000)
+            .map(|_| {
+                let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.5 - 0.05;
+                let n = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
+                (p, n.normalize())
+            })
+            .collect();
+        let mut out = vec![Vec3::splat(-1.0); queries.len()];
+        lf.query_many(&queries, &mut out);
+        let mut lit = 0;
+        for (&(p, n), o) in queries.iter().zip(&out) {
+            let want = lf.query(p, n);
+            assert_eq!(
+                o.to_array().map(f32::to_bits),
+                want.to_array().map(f32::to_bits)
+            );
+            lit += (want != Vec3::ZERO) as usize;
+        }
+        // Both kinds occur: lit voxels and dark (empty or unseen) ones.
+        assert!(lit > 50 && lit < 950, "{lit} of 1000 lit");
     }
 
     /// Two surfaces in one voxel keep their own means; an unseen back side reads 0, a tilted

@@ -9,8 +9,8 @@
 //! Owns: the shading estimators and the per-view shading buffers. Must not touch: files, the
 //! filter (see `filter`), tensors.
 
+use crate::accel::Accel;
 use crate::accel::raycast::ViewHits;
-use crate::accel::{Accel, Hit};
 use crate::lightfield::LightField;
 use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
 use fipt_core::rng::Rng;
@@ -47,16 +47,6 @@ impl BakeSamples {
     }
 }
 
-/// L′ seen along the ray `o + t·w` whose closest hit is `hit`: the light field at the hit, on
-/// the side the ray hits; 0 on a miss.
-#[inline]
-pub fn radiance_at(accel: &Accel, lf: &LightField, o: Vec3, w: Vec3, hit: Option<Hit>) -> Vec3 {
-    match hit {
-        Some(h) => lf.query(o + w * h.t, accel.facing_normal(h.tri, w)),
-        None => Vec3::ZERO,
-    }
-}
-
 /// The shading estimator over one scene: geometry, L′ and sample counts.
 pub struct Baker<'a> {
     pub accel: &'a Accel,
@@ -70,8 +60,8 @@ impl Baker<'_> {
     /// number of rays cast (GGX samples below the horizon cast none).
     ///
     /// All the point's directions are drawn first (in the estimators' order of random
-    /// numbers), traced as one batch (`Accel::closest_many`), L′ looked up at every hit in one
-    /// pass (independent lookups, so their cache misses overlap), then summed in the same
+    /// numbers), traced as one batch (`Accel::closest_many`), L′ looked up at every hit as one
+    /// batch (`LightField::query_many`, whose cache misses overlap), then summed in the same
     /// order: the result equals tracing and looking up one ray at a time, bit for bit.
     pub fn shade_point(&self, x: Vec3, n: Vec3, wo: Vec3, rng: &mut Rng, out: &mut [f32]) -> u64 {
         let frame = Frame::new(n);
@@ -100,11 +90,21 @@ impl Baker<'_> {
         let mut hits = vec![None; rays.len()];
         self.accel
             .closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
-        let radiance: Vec<Vec3> = rays
+        // L′ at every hit, on the side the ray hits (`LightField::query_many`); a miss sees 0.
+        let (at, queries): (Vec<usize>, Vec<(Vec3, Vec3)>) = rays
             .iter()
             .zip(&hits)
-            .map(|(&(o, w), &h)| radiance_at(self.accel, self.lf, o, w, h))
-            .collect();
+            .enumerate()
+            .filter_map(|(i, (&(o, w), &h))| {
+                h.map(|h| (i, (o + w * h.t, self.accel.facing_normal(h.tri, w))))
+            })
+            .unzip();
+        let mut seen = vec![Vec3::ZERO; queries.len()];
+        self.lf.query_many(&queries, &mut seen);
+        let mut radiance = vec![Vec3::ZERO; rays.len()];
+        for (i, l) in at.into_iter().zip(seen) {
+            radiance[i] = l;
+        }
         let ld = radiance[..nd].iter().fold(Vec3::ZERO, |a, &l| a + l);
         out[ShadingLayout::LD].copy_from_slice(&(ld / nd.max(1) as f32).to_array());
         let mut s = [(Vec3::ZERO, Vec3::ZERO); ROUGHNESS_LEVELS];
