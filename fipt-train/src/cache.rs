@@ -14,7 +14,7 @@ use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"FIPTSHD1";
 /// Bumped whenever the bake's maths or this format changes.
-pub const BAKE_CODE_VERSION: u32 = 3;
+pub const BAKE_CODE_VERSION: u32 = 4;
 
 /// Cache key of a scene's bake: code version, config, seed, mesh, cameras and train images.
 pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> u64 {
