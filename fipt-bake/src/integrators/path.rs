@@ -1,6 +1,7 @@
 //! A wavefront path tracer (the rendering equation, paper Eq. 3–4) over the scene mesh with the
 //! FIPT BRDF (Eq. 1) at every hit: each bounce takes the batch of live rays → closest hits →
-//! one batched material query (`MaterialSource`) → next-event estimation to the area lights
+//! one batched material query (`MaterialSource`) → one batched L′ lookup where the radiance
+//! cache ends a path (`LightField::query_many`) → next-event estimation to the area lights
 //! with MIS (power heuristic) → BRDF sampling (a diffuse/GGX mixture: the reference's 50/50 or
 //! by lobe reflectance, `PathConfig::lobe`) → the next batch.
 //!
@@ -308,13 +309,15 @@ impl PathScene<'_> {
             for (k, &i) in idx.iter().enumerate() {
                 mat_of[i] = k as u32;
             }
+            let cached = self.cache_lookups(&paths, &hits, &mat_of, &mats, depth);
             // Shade: emission, next-event estimation, BRDF sampling.
             let shadow: u64 = paths
                 .par_iter_mut()
                 .zip(&hits)
                 .zip(&mat_of)
+                .zip(&cached)
                 .with_min_len(256)
-                .map(|((ps, hit), &m)| {
+                .map(|(((ps, hit), &m), &l)| {
                     if !ps.alive {
                         return 0;
                     }
@@ -322,7 +325,7 @@ impl PathScene<'_> {
                         ps.alive = false;
                         return 0;
                     };
-                    self.shade(ps, t, tri, mats[m as usize], depth, cfg)
+                    self.shade(ps, t, tri, mats[m as usize], l, depth, cfg)
                 })
                 .sum();
             stats.shadow_rays += shadow;
@@ -376,13 +379,64 @@ impl PathScene<'_> {
         (Some(hit), 1)
     }
 
-    /// One vertex of a path at distance `t` on triangle `tri`; returns the shadow rays cast.
+    /// Whether the radiance cache ends a path at this vertex of segment `depth`: a hit on a
+    /// non-emitter rougher than the cache's threshold (`shade` then reads L′ there).
+    #[inline]
+    fn cache_applies(&self, tri: u32, mat: &SurfaceMaterial, depth: usize) -> bool {
+        self.cache.is_some_and(|c| {
+            depth >= 2 && mat.roughness > c.min_roughness && self.emitters.light_of(tri).is_none()
+        })
+    }
+
+    /// L′ at every hit of a wavefront where the radiance cache applies (0 elsewhere), looked
+    /// up in batches whose cache misses overlap (`LightField::query_many`): the values `query`
+    /// gives at the hit point on the side the ray hits.
+    fn cache_lookups(
+        &self,
+        paths: &[PathState],
+        hits: &[WaveHit],
+        mat_of: &[u32],
+        mats: &[SurfaceMaterial],
+        depth: usize,
+    ) -> Vec<Vec3> {
+        let mut out = vec![Vec3::ZERO; paths.len()];
+        let Some(c) = self.cache else {
+            return out;
+        };
+        out.par_chunks_mut(1024)
+            .zip(paths.par_chunks(1024))
+            .zip(hits.par_chunks(1024))
+            .zip(mat_of.par_chunks(1024))
+            .for_each(|(((o, p), h), m)| {
+                let (at, queries): (Vec<usize>, Vec<(Vec3, Vec3)>) = (0..p.len())
+                    .filter_map(|i| {
+                        let (t, tri) = h[i]?;
+                        let ok = p[i].alive && self.cache_applies(tri, &mats[m[i] as usize], depth);
+                        ok.then(|| {
+                            let x = p[i].origin + p[i].dir * t;
+                            (i, (x, self.accel.facing_normal(tri, p[i].dir)))
+                        })
+                    })
+                    .unzip();
+                let mut seen = vec![Vec3::ZERO; queries.len()];
+                c.light_field.query_many(&queries, &mut seen);
+                for (i, l) in at.into_iter().zip(seen) {
+                    o[i] = l;
+                }
+            });
+        out
+    }
+
+    /// One vertex of a path at distance `t` on triangle `tri`; `cached` is L′ there where the
+    /// radiance cache applies (`cache_lookups`). Returns the shadow rays cast.
+    #[allow(clippy::too_many_arguments)]
     fn shade(
         &self,
         ps: &mut PathState,
         t: f32,
         tri: u32,
         mat: SurfaceMaterial,
+        cached: Vec3,
         depth: usize,
         cfg: &PathConfig,
     ) -> u64 {
@@ -407,18 +461,10 @@ impl PathScene<'_> {
                 ps.alive = false;
                 return 0;
             }
-        } else if let Some(c) = self.cache
-            && depth >= 2
-            && mat.roughness > c.min_roughness
-        {
-            let l = c
-                .light_field
-                .query(x, self.accel.facing_normal(tri, ps.dir));
-            if l.element_sum() > 0.0 {
-                ps.radiance += ps.throughput * l;
-                ps.alive = false;
-                return 0;
-            }
+        } else if self.cache_applies(tri, &mat, depth) && cached.element_sum() > 0.0 {
+            ps.radiance += ps.throughput * cached;
+            ps.alive = false;
+            return 0;
         }
         if depth == cfg.max_depth {
             ps.alive = false;
