@@ -316,17 +316,18 @@ impl LightField {
         }
     }
 
-    /// `query` of every `(p, n)` of `queries` into `out` (same length), bit for bit. A query
-    /// is three dependent reads (brick table, brick, voxel record) that mostly miss the cache
+    /// `query` of every `Some((p, n))` of `queries` into `out` (same length), bit for bit; a
+    /// `None` (a ray that hit nothing) reads 0. A query is three dependent reads (brick table, brick, voxel record) that mostly miss the cache
     /// on a scene-sized grid; here each block of queries takes the reads one level at a time
     /// and prefetches the next level for all of them, so their misses overlap instead of
     /// queueing. In the bake this halves the time of the lookups.
-    pub fn query_many(&self, queries: &[(Vec3, Vec3)], out: &mut [Vec3]) {
+    pub fn query_many(&self, queries: &[Option<(Vec3, Vec3)>], out: &mut [Vec3]) {
         assert_eq!(queries.len(), out.len(), "query_many: one output per query");
         const BLOCK: usize = 64;
         for (qs, os) in queries.chunks(BLOCK).zip(out.chunks_mut(BLOCK)) {
             let mut at = [(EMPTY, 0u32); BLOCK];
-            for (a, &(p, _)) in at.iter_mut().zip(qs) {
+            for (a, q) in at.iter_mut().zip(qs) {
+                let Some((p, _)) = *q else { continue };
                 let (t, l) = self.slot(self.voxel(p));
                 let b = self.top[t];
                 if b != EMPTY {
@@ -345,11 +346,10 @@ impl LightField {
                     }
                 }
             }
-            for ((o, &(_, n)), &r) in os.iter_mut().zip(qs).zip(&rec) {
-                *o = if r == EMPTY {
-                    Vec3::ZERO
-                } else {
-                    seen_from(&self.sides[r as usize], n)
+            for ((o, q), &r) in os.iter_mut().zip(qs).zip(&rec) {
+                *o = match q {
+                    Some((_, n)) if r != EMPTY => seen_from(&self.sides[r as usize], *n),
+                    _ => Vec3::ZERO,
                 };
             }
         }
@@ -606,7 +606,7 @@ mod tests {
 
     /// The batched query is the single one, bit for bit, on 1000 queries (several blocks and
     /// a partial one): occupied, filled and empty voxels, empty bricks, points outside the box
-    /// (clamped), own sides and half-space fallbacks.
+    /// (clamped), own sides and half-space fallbacks; a missing query reads 0.
     #[test]
     fn batched_queries_equal_single_ones() {
         let b = SceneBox { min: 0.0, max: 1.0 };
@@ -620,18 +620,19 @@ mod tests {
             })
             .collect();
         let lf = LightField::build(b, 64, samples);
-        let queries: Vec<(Vec3, Vec3)> = (0..1000)
-            .map(|_| {
+        // Every seventh query is a miss (None), which reads 0.
+        let queries: Vec<Option<(Vec3, Vec3)>> = (0..1000)
+            .map(|i| {
                 let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.5 - 0.05;
                 let n = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0 - 1.0;
-                (p, n.normalize())
+                (i % 7 != 3).then(|| (p, n.normalize()))
             })
             .collect();
         let mut out = vec![Vec3::splat(-1.0); queries.len()];
         lf.query_many(&queries, &mut out);
         let mut lit = 0;
-        for (&(p, n), o) in queries.iter().zip(&out) {
-            let want = lf.query(p, n);
+        for (q, o) in queries.iter().zip(&out) {
+            let want = q.map_or(Vec3::ZERO, |(p, n)| lf.query(p, n));
             assert_eq!(
                 o.to_array().map(f32::to_bits),
                 want.to_array().map(f32::to_bits)

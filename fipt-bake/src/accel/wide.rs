@@ -527,14 +527,8 @@ mod simd {
                                 & mask;
                             let j = near.trailing_zeros() as usize;
                             let rest = mask & !(1u32 << j);
-                            let perm =
-                                _mm256_load_si256(COMPRESS.0.get_unchecked(rest as usize).as_ptr()
-                                    as *const __m256i);
-                            let codes = _mm256_loadu_si256(n.child.as_ptr() as *const __m256i);
-                            _mm256_storeu_si256(
-                                sc.add($sp) as *mut __m256i,
-                                _mm256_permutevar8x32_epi32(codes, perm),
-                            );
+                            let perm = compress(rest);
+                            push_children(n, perm, sc.add($sp));
                             _mm256_storeu_ps(st.add($sp), _mm256_permutevar8x32_ps(tn, perm));
                             $sp += rest.count_ones() as usize;
                             $code = n.child[j];
@@ -603,6 +597,33 @@ mod simd {
         }
         Compress(t)
     };
+
+    /// The permutation that moves the lanes set in `lanes` (8 bits) to the front, in order.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn compress(lanes: u32) -> __m256i {
+        // SAFETY: `lanes` < 256 indexes the table; its rows are 32-byte aligned.
+        unsafe {
+            _mm256_load_si256(COMPRESS.0.get_unchecked(lanes as usize).as_ptr() as *const __m256i)
+        }
+    }
+
+    /// Stores `n`'s child codes permuted by `perm` (`compress`) at `dst`: all eight lanes,
+    /// of which the caller counts the ones it pushed.
+    ///
+    /// # Safety
+    /// `dst` must have room for eight codes.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn push_children(n: &Node8, perm: __m256i, dst: *mut u32) {
+        unsafe {
+            let codes = _mm256_loadu_si256(n.child.as_ptr() as *const __m256i);
+            _mm256_storeu_si256(
+                dst as *mut __m256i,
+                _mm256_permutevar8x32_epi32(codes, perm),
+            );
+        }
+    }
 
     /// A traversal stack (uninitialised: zeroing 1 KiB per ray costs more than a short walk),
     /// with room for a push's eight lanes beyond `STACK`.
@@ -723,14 +744,7 @@ mod simd {
                         // The first entered child goes on, the others are pushed compressed.
                         code = n.child[mask.trailing_zeros() as usize];
                         let rest = mask & (mask - 1);
-                        let perm = _mm256_load_si256(
-                            COMPRESS.0.get_unchecked(rest as usize).as_ptr() as *const __m256i,
-                        );
-                        let codes = _mm256_loadu_si256(n.child.as_ptr() as *const __m256i);
-                        _mm256_storeu_si256(
-                            stack.add(sp) as *mut __m256i,
-                            _mm256_permutevar8x32_epi32(codes, perm),
-                        );
+                        push_children(n, compress(rest), stack.add(sp));
                         sp += rest.count_ones() as usize;
                         continue;
                     }

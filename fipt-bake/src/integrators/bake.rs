@@ -91,20 +91,13 @@ impl Baker<'_> {
         self.accel
             .closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
         // L′ at every hit, on the side the ray hits (`LightField::query_many`); a miss sees 0.
-        let (at, queries): (Vec<usize>, Vec<(Vec3, Vec3)>) = rays
+        let queries: Vec<Option<(Vec3, Vec3)>> = rays
             .iter()
             .zip(&hits)
-            .enumerate()
-            .filter_map(|(i, (&(o, w), &h))| {
-                h.map(|h| (i, (o + w * h.t, self.accel.facing_normal(h.tri, w))))
-            })
-            .unzip();
-        let mut seen = vec![Vec3::ZERO; queries.len()];
-        self.lf.query_many(&queries, &mut seen);
+            .map(|(&(o, w), h)| h.map(|h| (o + w * h.t, self.accel.facing_normal(h.tri, w))))
+            .collect();
         let mut radiance = vec![Vec3::ZERO; rays.len()];
-        for (i, l) in at.into_iter().zip(seen) {
-            radiance[i] = l;
-        }
+        self.lf.query_many(&queries, &mut radiance);
         let ld = radiance[..nd].iter().fold(Vec3::ZERO, |a, &l| a + l);
         out[ShadingLayout::LD].copy_from_slice(&(ld / nd.max(1) as f32).to_array());
         let mut s = [(Vec3::ZERO, Vec3::ZERO); ROUGHNESS_LEVELS];

@@ -379,8 +379,9 @@ impl PathScene<'_> {
         (Some(hit), 1)
     }
 
-    /// Whether the radiance cache ends a path at this vertex of segment `depth`: a hit on a
-    /// non-emitter rougher than the cache's threshold (`shade` then reads L′ there).
+    /// Whether the radiance cache applies at this vertex of segment `depth`: a hit on a
+    /// non-emitter rougher than the cache's threshold (`cache_lookups` reads L′ there, and
+    /// `shade` ends the path where that is lit).
     #[inline]
     fn cache_applies(&self, tri: u32, mat: &SurfaceMaterial, depth: usize) -> bool {
         self.cache.is_some_and(|c| {
@@ -408,21 +409,17 @@ impl PathScene<'_> {
             .zip(hits.par_chunks(1024))
             .zip(mat_of.par_chunks(1024))
             .for_each(|(((o, p), h), m)| {
-                let (at, queries): (Vec<usize>, Vec<(Vec3, Vec3)>) = (0..p.len())
-                    .filter_map(|i| {
+                let queries: Vec<Option<(Vec3, Vec3)>> = (0..p.len())
+                    .map(|i| {
                         let (t, tri) = h[i]?;
                         let ok = p[i].alive && self.cache_applies(tri, &mats[m[i] as usize], depth);
                         ok.then(|| {
                             let x = p[i].origin + p[i].dir * t;
-                            (i, (x, self.accel.facing_normal(tri, p[i].dir)))
+                            (x, self.accel.facing_normal(tri, p[i].dir))
                         })
                     })
-                    .unzip();
-                let mut seen = vec![Vec3::ZERO; queries.len()];
-                c.light_field.query_many(&queries, &mut seen);
-                for (i, l) in at.into_iter().zip(seen) {
-                    o[i] = l;
-                }
+                    .collect();
+                c.light_field.query_many(&queries, o);
             });
         out
     }
@@ -461,7 +458,9 @@ impl PathScene<'_> {
                 ps.alive = false;
                 return 0;
             }
-        } else if self.cache_applies(tri, &mat, depth) && cached.element_sum() > 0.0 {
+        } else if cached.element_sum() > 0.0 {
+            // The radiance cache applied here (`cache_lookups`: 0 where it does not) and L′ is
+            // lit: the path takes it and ends.
             ps.radiance += ps.throughput * cached;
             ps.alive = false;
             return 0;
