@@ -4,17 +4,17 @@
 use fipt_bake::integrators::bake::{BakeConfig, BakeView, bake_views, build_light_field};
 use fipt_bake::{Accel, cast_view};
 use fipt_core::scene::{Dataset, LoadOptions};
-use fipt_train::metrics;
+use fipt_train::image_metrics;
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/fipt-room")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room")
 }
 
 #[test]
 fn gt_render_of_baked_shadings_matches_images() {
     let opts = LoadOptions {
-        maps: metrics::GT_RENDER_MAPS.to_vec(),
+        maps: image_metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
     };
     let ds = Dataset::load(&scene_dir(), &opts).unwrap();
@@ -58,9 +58,9 @@ fn gt_render_of_baked_shadings_matches_images() {
     let scores: Vec<_> = picked
         .iter()
         .zip(&baked.shadings)
-        .map(|(&k, s)| metrics::gt_render_psnr(&ds.train.views[k], s).unwrap())
+        .map(|(&k, s)| image_metrics::gt_render_psnr(&ds.train.views[k], s).unwrap())
         .collect();
-    let mean = |f: &dyn Fn(&metrics::GtRenderPsnr) -> Option<f64>| {
+    let mean = |f: &dyn Fn(&image_metrics::GtRenderPsnr) -> Option<f64>| {
         let v: Vec<f64> = scores.iter().filter_map(f).collect();
         v.iter().sum::<f64>() / v.len() as f64
     };

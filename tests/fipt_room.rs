@@ -1,4 +1,4 @@
-//! Agreement with the Mitsuba 3 reference scene `../shared/scenes/fipt-room`: the loaders, the
+//! Agreement with the Mitsuba 3 reference scene `scenes/fipt-room` (a copy of the Mitsuba reference): the loaders, the
 //! camera convention and the ray caster must reproduce the renderer's own hits and labels.
 
 use fipt_bake::{Accel, cast_view};
@@ -6,10 +6,10 @@ use fipt_core::scene::{Dataset, LoadOptions, MapKind};
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/fipt-room");
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room");
     assert!(
         p.join("scene.obj").exists(),
-        "reference scene missing at {} (../shared must sit beside the repository)",
+        "reference scene missing at {} (the repository carries it under scenes/)",
         p.display()
     );
     p

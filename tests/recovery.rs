@@ -192,7 +192,7 @@ fn shipped_fit_recovers_known_brdf_and_emitter() {
             max: EXTENT,
         },
         mode: SegMode::Part,
-        schedule: t.schedule(),
+        schedule: t.clone(),
         seed: cfg.seed,
     };
     let (tr, _) = fit(&store, plan, &Device::flex(), false);

@@ -12,7 +12,7 @@ use fipt_train::render::{RenderJob, render};
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/fipt-room")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room")
 }
 
 fn job(out: &str, relight: bool) -> RenderJob {

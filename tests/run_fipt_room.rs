@@ -20,7 +20,7 @@ fn root() -> PathBuf {
 }
 
 fn scene_dir() -> PathBuf {
-    root().join("../shared/scenes/fipt-room")
+    root().join("scenes/fipt-room")
 }
 
 fn run(out: &Path, config: &Path, zoo: Option<&Path>) -> Value {

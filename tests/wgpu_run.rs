@@ -24,7 +24,7 @@ const VIEWS: usize = 6;
 
 /// A scene folder holding the first `VIEWS` train views of fipt-room (links to its files).
 fn small_scene(dir: &Path) {
-    let src = root().join("../shared/scenes/fipt-room");
+    let src = root().join("scenes/fipt-room");
     let _ = std::fs::remove_dir_all(dir);
     std::fs::create_dir_all(dir.join("train")).unwrap();
     for f in ["scene.obj", "scene_meta.json", "textures"] {

@@ -2,12 +2,10 @@
 //!
 //! A training step allocates and frees a few hundred tensors of 0.1–30 MB. glibc's malloc
 //! serves blocks above its mmap threshold (128 KiB, raised dynamically) with fresh `mmap`s
-//! and gives them back on free, so every step faults its tensors' pages in again: measured
-//! with `perf` on this project's `bench step`, page faults and their kernel locks took about
-//! 45 % of the step. Keeping blocks up to 32 MiB (glibc's ceiling for the threshold) in the
-//! heap, and not trimming the heap below 1 GiB of free memory, makes the step reuse warm
-//! pages: `bench step --peer-sizes`, B = 8192, reference sizes 155.5 → 130 ms, the peers'
-//! CPU sizes 115.6 → 89 ms. Peak memory is unchanged (the same blocks, reused).
+//! and gives them back on free, so every step would fault its tensors' pages in again. Keeping
+//! blocks up to 32 MiB (glibc's ceiling for the threshold) in the heap, and not trimming the
+//! heap below 1 GiB of free memory, makes the step reuse warm pages (the same blocks, so peak
+//! memory is unchanged). `docs/performance.md` gives the step times.
 //!
 //! Owns: `mallopt` at start-up. Must not touch: anything else of the process.
 

@@ -2,11 +2,8 @@
 //! and any error names the key (`train.lr: invalid type ...`).
 //!
 //! Owns: the config schema, its defaults (the reference's constants, except the named
-//! departures: `emitters.min_unexplained`, the fit's schedule keys `train.min_steps`,
-//! `train.lr`/`lr_end`, `train.balance`, the basin hop `train.hop`, and the refinement's
-//! `light_samples` and sample counts; the README gives the measurement behind each) and
-//! validation. Must not touch: what
-//! the stages do with it.
+//! departures, each with its page in `docs/departures/`), validation, and the derivation of
+//! every seed of a run (`Seeds`). Must not touch: what the stages do with it.
 
 use anyhow::{Context, Result, bail};
 use fipt_bake::integrators::bake::BakeConfig;
@@ -59,8 +56,8 @@ impl Default for RefineSection {
         Self {
             rounds: 2,
             warm_start: false,
-            // A weaker diffuse prior on refined shadings (the reference keeps 5e-4); see the
-            // README's departures.
+            // A weaker diffuse prior on refined shadings (the reference keeps 5e-4);
+            // `docs/departures/refine-lambda-d.md`.
             lambda_d: Some(1e-4),
             lambda_d_warmup: None,
             paths: RefineConfig {
@@ -140,13 +137,21 @@ impl GridPlace {
     }
 }
 
+/// The fit (`train`): its schedule, its losses, the model's sizes, the basin hop.
+///
+/// The schedule: the reference trains `epochs` epochs of ceil(N / batch) steps at a constant
+/// learning rate (its milestone never fires), which is ~10k steps on its 41 M-pixel kitchen but
+/// ~226 on a 0.9 M-pixel scene. `min_steps` puts a floor under the step count so that the
+/// schedule transfers between scenes of different pixel counts, `lr_end` decays the learning
+/// rate exponentially to `lr_end × lr` at the last step, and `balance` draws that share of every
+/// batch uniformly over segments (then uniformly within the segment), so that small parts are
+/// seen. `TrainSection::reference` is the reference's schedule.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainSection {
     pub epochs: usize,
     pub batch: usize,
-    /// Floor on the steps of a fit (0: the reference's `epochs` epochs only); see
-    /// `pipeline::fit::Schedule`.
+    /// Floor on the steps of a fit (0: the reference's `epochs` epochs only).
     pub min_steps: usize,
     pub lr: f64,
     /// Learning rate at the last step as a fraction of `lr`, decayed exponentially (1: constant,
@@ -181,7 +186,7 @@ pub struct TrainSection {
     /// backends).
     pub grid_place: GridPlace,
     /// The basin hop on σ after every fit (`pipeline::hop`; null: none, the reference).
-    pub hop: Option<crate::pipeline::hop::HopConfig>,
+    pub hop: Option<HopConfig>,
 }
 
 impl Default for TrainSection {
@@ -195,7 +200,7 @@ impl Default for TrainSection {
             balance: 0.25,
             lambda_d_end: 1.0,
             // λ_d rises over the first three quarters of each fit and the σ, m logits are
-            // bounded (the reference has neither); see the README's departures.
+            // bounded (the reference has neither); `docs/departures/`.
             lambda_d_warmup: 0.75,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
@@ -205,8 +210,8 @@ impl Default for TrainSection {
             lambda_logit: 1e-3,
             lambda_sem: 1e-3,
             sem_partners: 1024,
-            // Levels finer than the pixel footprint dropped (the reference keeps all 32); see
-            // the README's departures.
+            // Levels finer than the pixel footprint dropped (the reference keeps all 32);
+            // `docs/departures/grid-max-resolution.md`.
             grid: HashGridConfig {
                 max_resolution: MaxResolution::Keyword(ResolutionKeyword::Auto),
                 ..HashGridConfig::default()
@@ -217,7 +222,84 @@ impl Default for TrainSection {
             emission_depth: 6,
             emission_width: 128,
             grid_place: GridPlace::Auto,
-            hop: Some(crate::pipeline::hop::HopConfig::default()),
+            hop: Some(HopConfig::default()),
+        }
+    }
+}
+
+/// Every seed of a run, each derived from the config's `seed` here and nowhere else.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Seeds(pub u64);
+
+impl Seeds {
+    /// The bake's samples, the trainer's initial model, the emitter extraction and the
+    /// re-renders.
+    pub fn base(self) -> u64 {
+        self.0
+    }
+
+    /// Round `r`'s batch sampler: the base seed, or with a warm start a new one per round.
+    pub fn fit(self, r: usize, warm: bool) -> u64 {
+        if warm {
+            self.0.wrapping_add(r as u64)
+        } else {
+            self.0
+        }
+    }
+
+    /// Round `r`'s basin hop.
+    pub fn hop(self, r: usize) -> u64 {
+        self.0 ^ ((r as u64) << 40)
+    }
+
+    /// Refinement `r`'s path tracer.
+    pub fn refine(self, r: usize) -> u64 {
+        self.0 ^ ((r as u64) << 32)
+    }
+
+    /// The oracle shadings' path tracer.
+    pub fn oracle(self) -> u64 {
+        self.0 ^ 0x0_7ac1e
+    }
+
+    /// The Monte Carlo albedo of view `k`'s predicted maps.
+    pub fn view_maps(self, k: usize) -> u64 {
+        self.0 ^ k as u64
+    }
+}
+
+impl Config {
+    /// The run's seeds.
+    pub fn seeds(&self) -> Seeds {
+        Seeds(self.seed)
+    }
+
+    /// Whether round `r`'s fit continues the last round's model (`refine.warm_start`).
+    pub fn warm_start(&self, r: usize) -> bool {
+        r > 0 && self.refine.warm_start
+    }
+
+    /// The bake's config with the run's seed.
+    pub fn bake_config(&self) -> BakeConfig {
+        BakeConfig {
+            seed: self.seeds().base(),
+            ..self.bake.clone()
+        }
+    }
+
+    /// The path tracer's config of refinement `r` (its seed set).
+    pub fn refine_paths(&self, r: usize) -> RefineConfig {
+        RefineConfig {
+            seed: self.seeds().refine(r),
+            ..self.refine.paths.clone()
+        }
+    }
+
+    /// The path tracer's config of the oracle shadings.
+    pub fn oracle_paths(&self) -> RefineConfig {
+        RefineConfig {
+            seed: self.seeds().oracle(),
+            ..self.refine.paths.clone()
         }
     }
 }
@@ -240,18 +322,50 @@ impl Config {
 }
 
 impl TrainSection {
-    /// The fit's schedule.
-    pub fn schedule(&self) -> crate::pipeline::fit::Schedule {
-        crate::pipeline::fit::Schedule {
-            epochs: self.epochs,
-            batch: self.batch,
-            min_steps: self.min_steps,
-            lr: self.lr,
-            lr_end: self.lr_end,
-            balance: self.balance,
-            lambda_d_end: self.lambda_d_end,
-            lambda_d_warmup: self.lambda_d_warmup,
+    /// The reference's schedule (`epochs` epochs of ceil(N / batch) steps at a constant `lr`,
+    /// uniform batches, a constant λ_d) with the other keys at their defaults.
+    pub fn reference(epochs: usize, batch: usize, lr: f64) -> Self {
+        Self {
+            epochs,
+            batch,
+            min_steps: 0,
+            lr,
+            lr_end: 1.0,
+            balance: 0.0,
+            lambda_d_end: 1.0,
+            lambda_d_warmup: 0.0,
+            ..Self::default()
         }
+    }
+
+    /// The factor on λ_d at step `s` of `total`.
+    pub fn lambda_d_at(&self, s: usize, total: usize) -> f32 {
+        let f = if total > 1 {
+            s as f32 / (total - 1) as f32
+        } else {
+            0.0
+        };
+        let ramp = if self.lambda_d_warmup > 0.0 {
+            (f / self.lambda_d_warmup).min(1.0)
+        } else {
+            1.0
+        };
+        ramp * (1.0 + (self.lambda_d_end - 1.0) * f)
+    }
+
+    /// Steps of a fit over `n` pixels.
+    pub fn steps(&self, n: usize) -> usize {
+        (self.epochs * n.div_ceil(self.batch.max(1))).max(self.min_steps)
+    }
+
+    /// The learning rate of step `s` of `total`.
+    pub fn lr_at(&self, s: usize, total: usize) -> f64 {
+        let f = if total > 1 {
+            s as f64 / (total - 1) as f64
+        } else {
+            0.0
+        };
+        self.lr * self.lr_end.powf(f)
     }
 
     /// The model's burn config, with `levels` hash-grid levels (see `HashGridConfig::levels_for`),
@@ -294,6 +408,38 @@ impl TrainSection {
     }
 }
 
+/// The basin hop's keys (`train.hop`, run by `pipeline::hop`; null: no hop, the reference).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HopConfig {
+    /// Relative drop of a segment's objective at the sweep's best σ that calls for a hop.
+    pub gain: f32,
+    /// Smallest |best σ − mean fitted σ| that calls for a hop.
+    pub min_move: f32,
+    /// Steps of each phase (pull, then release) as a share of the fit's steps.
+    pub steps: f32,
+    /// Weight of the pull (`loss::sigma_pull_loss`).
+    pub pull: f32,
+    /// Pixels per segment in the sweep and the decision.
+    pub pixels: usize,
+    /// Share of the fit's final λ_d that the check and the decision hold (1: the fit's own
+    /// objective, Eq. 15 + 17; 0: the data term alone, Eq. 15).
+    pub prior: f32,
+}
+
+impl Default for HopConfig {
+    fn default() -> Self {
+        Self {
+            gain: 0.05,
+            min_move: 0.25,
+            steps: 0.15,
+            pull: 1e-2,
+            pixels: 4096,
+            prior: 0.0,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EmitterSection {
@@ -301,9 +447,8 @@ pub struct EmitterSection {
     /// Mean α above which a triangle is a candidate (reference: 0.01).
     pub threshold: f32,
     /// A candidate must leave at least this median share of its observed radiance unexplained
-    /// by reflection (0 = the reference rule; see `fipt_bake::emitters`). The default 0.5 departs
-    /// from the reference: on fipt-room with `configs/fast.json` the reference rule also takes
-    /// 0.26 m² of the cabinet as an emitter (IoU 0.83); at the reference schedule both agree.
+    /// by reflection (0 = the reference rule; see `fipt_bake::emitters` and
+    /// `docs/departures/min-unexplained.md`).
     pub min_unexplained: f32,
     /// Candidates no photo saw, next to an emitter, take its radiance instead of being dropped
     /// (false: the reference). See `fipt_bake::emitters`.
@@ -383,9 +528,7 @@ impl Default for RenderSection {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CheckpointSection {
-    /// Save the running fit every this many steps (0: only when it ends and on Ctrl-C). At the
-    /// default 200, saving costs 1.5 % of a default fipt-room run (~1.1 s per save of the
-    /// 370 MB state, 15 saves); `configs/fast.json`'s small model saves every 100.
+    /// Save the running fit every this many steps (0: only when it ends and on Ctrl-C).
     pub every_steps: usize,
 }
 
@@ -422,54 +565,80 @@ impl Config {
 
     /// Range checks.
     pub fn validate(&self) -> Result<()> {
-        let r = &self.render;
+        validate_render(&self.render)?;
+        validate_bake(&self.bake)?;
+        self.train.validate(self.refine.lambda_d_warmup)?;
+        self.emitters.validate()?;
+        validate_refine(&self.refine)?;
         check(
-            (1..=1 << 16).contains(&r.spp) && (1..=1 << 16).contains(&r.relight_spp),
-            "render.spp",
-            "sample counts must be in [1, 65536]",
-        )?;
-        check(
-            r.pixel_positions.isqrt().pow(2) == r.pixel_positions && r.pixel_positions <= 4096,
-            "render.pixel_positions",
-            "must be a square (0, 1, 4, 9, 16, ...) up to 4096",
-        )?;
-        check(
-            (1..=64).contains(&r.max_depth),
-            "render.max_depth",
-            "must be in [1, 64]",
-        )?;
-        let b = &self.bake;
-        check(
-            b.voxel_res >= 8 && b.voxel_res.is_multiple_of(8) && b.voxel_res <= 4096,
-            "bake.voxel_res",
-            "must be a multiple of 8 in [8, 4096]",
-        )?;
-        check(
-            b.samples.diffuse >= 1,
-            "bake.samples.diffuse",
+            self.maps.albedo_samples >= 1,
+            "maps.albedo_samples",
             "must be >= 1",
         )?;
-        check(
-            b.samples.specular.iter().all(|&s| s >= 1),
-            "bake.samples.specular",
-            "every count must be >= 1",
-        )?;
-        check(
-            b.filter.specular_levels.iter().all(|&j| j < 6),
-            "bake.filter.specular_levels",
-            "levels are 0..5",
-        )?;
-        check(
-            b.filter.sigma_px > 0.0 && b.filter.sigma_plane_px > 0.0,
-            "bake.filter.sigma_px",
-            "filter scales must be > 0",
-        )?;
-        check(
-            b.filter.normal_power >= 0.0,
-            "bake.filter.normal_power",
-            "must be >= 0",
-        )?;
-        let t = &self.train;
+        Ok(())
+    }
+}
+
+/// The `render` section's ranges.
+fn validate_render(r: &RenderSection) -> Result<()> {
+    check(
+        (1..=1 << 16).contains(&r.spp) && (1..=1 << 16).contains(&r.relight_spp),
+        "render.spp",
+        "sample counts must be in [1, 65536]",
+    )?;
+    check(
+        r.pixel_positions.isqrt().pow(2) == r.pixel_positions && r.pixel_positions <= 4096,
+        "render.pixel_positions",
+        "must be a square (0, 1, 4, 9, 16, ...) up to 4096",
+    )?;
+    check(
+        (1..=64).contains(&r.max_depth),
+        "render.max_depth",
+        "must be in [1, 64]",
+    )?;
+    Ok(())
+}
+
+/// The `bake` section's ranges.
+fn validate_bake(b: &BakeConfig) -> Result<()> {
+    check(
+        b.voxel_res >= 8 && b.voxel_res.is_multiple_of(8) && b.voxel_res <= 4096,
+        "bake.voxel_res",
+        "must be a multiple of 8 in [8, 4096]",
+    )?;
+    check(
+        b.samples.diffuse >= 1,
+        "bake.samples.diffuse",
+        "must be >= 1",
+    )?;
+    check(
+        b.samples.specular.iter().all(|&s| s >= 1),
+        "bake.samples.specular",
+        "every count must be >= 1",
+    )?;
+    check(
+        b.filter.specular_levels.iter().all(|&j| j < 6),
+        "bake.filter.specular_levels",
+        "levels are 0..5",
+    )?;
+    check(
+        b.filter.sigma_px > 0.0 && b.filter.sigma_plane_px > 0.0,
+        "bake.filter.sigma_px",
+        "filter scales must be > 0",
+    )?;
+    check(
+        b.filter.normal_power >= 0.0,
+        "bake.filter.normal_power",
+        "must be >= 0",
+    )?;
+    Ok(())
+}
+
+impl TrainSection {
+    /// The `train` section's ranges (with the refined rounds' λ_d warm-up override, a share
+    /// like the train section's own).
+    fn validate(&self, refine_warmup: Option<f32>) -> Result<()> {
+        let t = self;
         check(t.epochs >= 1, "train.epochs", "must be >= 1")?;
         check(t.batch >= 1, "train.batch", "must be >= 1")?;
         check(t.lr > 0.0 && t.lr.is_finite(), "train.lr", "must be > 0")?;
@@ -479,10 +648,7 @@ impl Config {
             "must be in (0, 1]",
         )?;
         // Shares and fractions (the refined rounds' warm-up override with the train section's).
-        let warmup_override = self
-            .refine
-            .lambda_d_warmup
-            .map(|w| ("refine.lambda_d_warmup", w));
+        let warmup_override = refine_warmup.map(|w| ("refine.lambda_d_warmup", w));
         for (k, v) in [
             ("train.lambda_d_end", t.lambda_d_end),
             ("train.lambda_d_warmup", t.lambda_d_warmup),
@@ -509,25 +675,14 @@ impl Config {
         }
         check(t.sem_partners >= 1, "train.sem_partners", "must be >= 1")?;
         if let Some(h) = &t.hop {
-            for (k, v) in [
-                ("train.hop.gain", h.gain),
-                ("train.hop.min_move", h.min_move),
-                ("train.hop.prior", h.prior),
-            ] {
-                check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
-            }
-            check(
-                h.steps > 0.0 && h.steps <= 1.0,
-                "train.hop.steps",
-                "must be in (0, 1]",
-            )?;
-            check(
-                h.pull >= 0.0 && h.pull.is_finite(),
-                "train.hop.pull",
-                "must be >= 0",
-            )?;
-            check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;
+            h.validate()?;
         }
+        self.validate_model()
+    }
+
+    /// The model's sizes: the hash grid and the MLPs.
+    fn validate_model(&self) -> Result<()> {
+        let t = self;
         let g = &t.grid;
         // A training table of at least 2^8 entries and a base of at least 2 cells; the rest
         // of the grid's ranges are `HashGridConfig::check`'s (also applied to saved models).
@@ -559,58 +714,124 @@ impl Config {
             "train.emission_depth",
             "MLP sizes must be >= 1",
         )?;
+        Ok(())
+    }
+}
+
+impl HopConfig {
+    /// The `train.hop` keys' ranges.
+    fn validate(&self) -> Result<()> {
+        let h = self;
+        for (k, v) in [
+            ("train.hop.gain", h.gain),
+            ("train.hop.min_move", h.min_move),
+            ("train.hop.prior", h.prior),
+        ] {
+            check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
+        }
         check(
-            self.emitters.samples_per_triangle >= 1,
+            h.steps > 0.0 && h.steps <= 1.0,
+            "train.hop.steps",
+            "must be in (0, 1]",
+        )?;
+        check(
+            h.pull >= 0.0 && h.pull.is_finite(),
+            "train.hop.pull",
+            "must be >= 0",
+        )?;
+        check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;
+        Ok(())
+    }
+}
+
+impl EmitterSection {
+    /// The `emitters` section's ranges.
+    fn validate(&self) -> Result<()> {
+        check(
+            self.samples_per_triangle >= 1,
             "emitters.samples_per_triangle",
             "must be >= 1",
         )?;
         check(
-            (0.0..1.0).contains(&self.emitters.threshold),
+            (0.0..1.0).contains(&self.threshold),
             "emitters.threshold",
             "must be in [0, 1)",
         )?;
         check(
-            (0.0..=1.0).contains(&self.emitters.min_unexplained),
+            (0.0..=1.0).contains(&self.min_unexplained),
             "emitters.min_unexplained",
             "must be in [0, 1]",
-        )?;
-        let r = &self.refine.paths;
-        check(
-            r.samples.diffuse >= 1 && r.samples.specular.iter().all(|&s| s >= 1),
-            "refine.paths.samples",
-            "every count must be >= 1",
-        )?;
-        check(
-            (2..=64).contains(&r.max_depth),
-            "refine.paths.max_depth",
-            "must be in [2, 64]",
-        )?;
-        check(
-            r.cache_roughness.is_finite() && r.cache_roughness >= 0.0,
-            "refine.paths.cache_roughness",
-            "must be >= 0",
-        )?;
-        check(
-            r.filter.specular_levels.iter().all(|&j| j < 6),
-            "refine.paths.filter.specular_levels",
-            "levels are 0..5",
-        )?;
-        check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
-        if let Some(l) = self.refine.lambda_d {
-            check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
-        }
-        check(
-            self.maps.albedo_samples >= 1,
-            "maps.albedo_samples",
-            "must be >= 1",
         )?;
         Ok(())
     }
 }
 
+/// The `refine` section's ranges.
+fn validate_refine(refine: &RefineSection) -> Result<()> {
+    let r = &refine.paths;
+    check(
+        r.samples.diffuse >= 1 && r.samples.specular.iter().all(|&s| s >= 1),
+        "refine.paths.samples",
+        "every count must be >= 1",
+    )?;
+    check(
+        (2..=64).contains(&r.max_depth),
+        "refine.paths.max_depth",
+        "must be in [2, 64]",
+    )?;
+    check(
+        r.cache_roughness.is_finite() && r.cache_roughness >= 0.0,
+        "refine.paths.cache_roughness",
+        "must be >= 0",
+    )?;
+    check(
+        r.filter.specular_levels.iter().all(|&j| j < 6),
+        "refine.paths.filter.specular_levels",
+        "levels are 0..5",
+    )?;
+    check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
+    if let Some(l) = refine.lambda_d {
+        check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The reference schedule: epochs × ceil(N/B) steps at a constant rate; the floor and the
+    /// decay as documented.
+    #[test]
+    fn schedule_steps_and_rates() {
+        let r = TrainSection::reference(2, 8192, 1e-3);
+        assert_eq!(r.steps(921_600), 226);
+        assert_eq!(r.lr_at(0, 226), 1e-3);
+        assert_eq!(r.lr_at(225, 226), 1e-3);
+        let s = TrainSection {
+            min_steps: 1000,
+            lr_end: 0.1,
+            ..r.clone()
+        };
+        assert_eq!(s.steps(921_600), 1000);
+        assert_eq!(s.steps(50_000_000), 2 * 6104);
+        assert!((s.lr_at(999, 1000) - 1e-4).abs() < 1e-12);
+        assert!((s.lr_at(0, 1000) - 1e-3).abs() < 1e-15);
+        let mid = s.lr_at(500, 1000) / 1e-3;
+        assert!((mid - 0.1f64.powf(500.0 / 999.0)).abs() < 1e-12);
+        // λ_d: 0 at the first step, linear to full at `lambda_d_warmup` of the steps, then the
+        // `lambda_d_end` line.
+        let w = TrainSection {
+            lambda_d_warmup: 0.5,
+            lambda_d_end: 0.5,
+            ..r.clone()
+        };
+        assert_eq!(w.lambda_d_at(0, 101), 0.0);
+        assert!((w.lambda_d_at(25, 101) - 0.5 * (1.0 - 0.5 * 0.25)).abs() < 1e-6);
+        assert!((w.lambda_d_at(50, 101) - (1.0 - 0.5 * 0.5)).abs() < 1e-6);
+        assert!((w.lambda_d_at(100, 101) - 0.5).abs() < 1e-6);
+        assert_eq!(r.lambda_d_at(0, 101), 1.0);
+    }
 
     #[test]
     fn errors_name_the_key() {

@@ -10,7 +10,7 @@
 //! light transport (fipt-bake), the pipeline's stages.
 
 use crate::pipeline::predict::{ViewMaps, albedo_mc};
-use crate::render::{CamRef, Edits, render_truth};
+use crate::render::{CamRef, Edits, TrueScene, render_truth};
 use anyhow::{Context, Result};
 use fipt_bake::Accel;
 use fipt_bake::emitters::LightSelection;
@@ -139,10 +139,7 @@ fn build_mesh(d: &Desc) -> (Mesh, Vec<[usize; 2]>) {
 /// Cameras inside the room looking at random surface points; deterministic. Half the targets
 /// are area-weighted over the whole room (walls, floor and ceiling get photographed, so L′ covers
 /// them), half are area-weighted within a part drawn uniformly (small objects and emitters get
-/// close-ups). Aiming at triangle centres instead favoured the finely tessellated spheres: the
-/// bake then saw too little of the room, its shadings came out ~1.6× too dark (albedo 1.6× too
-/// bright on the walls and floor) and round 0's k_d scored 11.0 dB; with these targets round 0
-/// scores 19.3 dB at 24 views and 21.0 dB at 32.
+/// close-ups), so that the bake sees the whole room and not only the finely tessellated parts.
 fn cameras(d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]], n: usize, stream: u64) -> Vec<Camera> {
     let (lo, hi) = mesh.bounds();
     let mut rng = Rng::new(d.seed, stream);
@@ -202,19 +199,24 @@ fn fipt_c2w(c: &Camera) -> [[f64; 4]; 4] {
     m
 }
 
+/// The demo scene being written: its description, geometry and true materials.
+struct DemoScene<'a> {
+    dir: &'a Path,
+    d: &'a Desc,
+    mesh: Mesh,
+    /// Each part's triangle range, and each triangle's part.
+    ranges: Vec<[usize; 2]>,
+    tri_part: Vec<usize>,
+    accel: Accel,
+    meta: SceneMeta,
+    mats: TrueMaterials,
+}
+
 /// The ground-truth maps of one camera at pixel centres (as the reference scenes' maps are):
 /// k_d, σ, m, a, a′ (Monte Carlo), emission towards the camera, part ids and semantic ids.
-#[allow(clippy::too_many_arguments)]
-fn gt_maps(
-    cam: &Camera,
-    accel: &Accel,
-    mesh: &Mesh,
-    mats: &TrueMaterials,
-    meta: &SceneMeta,
-    tri_part: &[usize],
-    d: &Desc,
-    view_key: u64,
-) -> (ViewMaps, Vec<f32>, Vec<f32>) {
+fn gt_maps(sc: &DemoScene, cam: &Camera, view_key: u64) -> (ViewMaps, Vec<f32>, Vec<f32>) {
+    let (accel, mesh, mats, meta, d) = (&sc.accel, &sc.mesh, &sc.mats, &sc.meta, sc.d);
+    let tri_part = &sc.tri_part;
     let (w, h) = (cam.width, cam.height);
     let origin = cam.origin_f32();
     let px: Vec<_> = (0..w * h)
@@ -302,17 +304,13 @@ pub fn write_scene(dir: &Path, quiet: bool) -> Result<bool> {
         return Ok(false);
     }
     let d: Desc = serde_json::from_str(DEMO_SCENE).context("configs/demo-scene.json: malformed")?;
-    let tmp = crate::scene_model::sibling(dir, "tmp");
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(tmp.join("textures"))
-        .with_context(|| format!("{}: cannot create", tmp.display()))?;
-    let res = write_into(&tmp, &d, quiet);
-    if let Err(e) = res {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e);
-    }
-    fipt_core::io::write_bytes_atomic(&tmp.join(STAMP_FILE), s.as_bytes())?;
-    crate::scene_model::replace_dir(&tmp, dir)?;
+    crate::output::staged_dir(dir, |tmp| {
+        std::fs::create_dir_all(tmp.join("textures"))
+            .with_context(|| format!("{}: cannot create", tmp.display()))?;
+        write_into(tmp, &d, quiet)?;
+        fipt_core::io::write_bytes_atomic(&tmp.join(STAMP_FILE), s.as_bytes())?;
+        Ok(())
+    })?;
     Ok(true)
 }
 
@@ -322,10 +320,48 @@ fn write_into(dir: &Path, d: &Desc, quiet: bool) -> Result<()> {
         &dir.join("scene.obj"),
         &format!("{}: {}", d.name, d.description),
     )?;
+    let meta = scene_meta(dir, d, &mesh, &ranges)?;
+    crate::output::write_json(&dir.join("scene_meta.json"), &meta)?;
+    crate::output::write_json(&dir.join("relight.json"), &d.relight)?;
+    let mats = TrueMaterials::load(
+        dir,
+        &dir.join("scene_meta.json"),
+        &meta,
+        mesh.num_triangles(),
+    )?;
+    let mut tri_part = vec![0usize; mesh.num_triangles()];
+    for (i, r) in ranges.iter().enumerate() {
+        tri_part[r[0]..r[1]].iter_mut().for_each(|t| *t = i);
+    }
+    let sc = DemoScene {
+        dir,
+        d,
+        accel: Accel::build(&mesh),
+        mesh,
+        ranges,
+        tri_part,
+        meta,
+        mats,
+    };
+    let path = PathConfig {
+        spp: d.spp,
+        max_depth: d.max_depth,
+        seed: d.seed,
+        ..Default::default()
+    };
+    for (split, n, stream) in [("train", d.train_views, 1u64), ("val", d.val_views, 2)] {
+        write_split(&sc, split, (n, stream), &path, quiet)?;
+    }
+    Ok(())
+}
+
+/// The scene's `scene_meta.json` (its parts with their materials, textures written into
+/// `dir/textures`, and emission; semantic labels in order of first use).
+fn scene_meta(dir: &Path, d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]]) -> Result<SceneMeta> {
     // Semantic labels in order of first use.
     let mut labels: Vec<String> = Vec::new();
     let mut parts = Vec::new();
-    for (id, (p, r)) in d.parts.iter().zip(&ranges).enumerate() {
+    for (id, (p, r)) in d.parts.iter().zip(ranges).enumerate() {
         if !labels.contains(&p.semantic) {
             labels.push(p.semantic.clone());
         }
@@ -373,100 +409,83 @@ fn write_into(dir: &Path, d: &Desc, quiet: bool) -> Result<()> {
             }),
         });
     }
-    let fov = d.fov_x_deg.to_radians();
-    let meta = SceneMeta {
+    Ok(SceneMeta {
         scene: d.name.clone(),
         semantic_labels: labels,
         parts,
         resolution: Some(d.resolution),
-        camera_angle_x: Some(fov),
-    };
-    crate::output::write_json(&dir.join("scene_meta.json"), &meta)?;
-    crate::output::write_json(&dir.join("relight.json"), &d.relight)?;
-    let mats = TrueMaterials::load(
-        dir,
-        &dir.join("scene_meta.json"),
-        &meta,
-        mesh.num_triangles(),
-    )?;
-    let mut tri_part = vec![0usize; mesh.num_triangles()];
-    for (i, r) in ranges.iter().enumerate() {
-        tri_part[r[0]..r[1]].iter_mut().for_each(|t| *t = i);
-    }
-    let accel = Accel::build(&mesh);
-    let path = PathConfig {
-        spp: d.spp,
-        max_depth: d.max_depth,
-        seed: d.seed,
-        ..Default::default()
-    };
-    for (split, n, stream) in [("train", d.train_views, 1u64), ("val", d.val_views, 2)] {
-        let sdir = dir.join(split);
-        let cams = cameras(d, &mesh, &ranges, n, stream);
-        let frames: Vec<_> = cams
+        camera_angle_x: Some(d.fov_x_deg.to_radians()),
+    })
+}
+
+/// One split of `n` views (camera stream `stream`): its cameras, ground-truth maps, photos and,
+/// for `val`, the relit photos.
+fn write_split(
+    sc: &DemoScene,
+    split: &str,
+    (n, stream): (usize, u64),
+    path: &PathConfig,
+    quiet: bool,
+) -> Result<()> {
+    let fov = sc.d.fov_x_deg.to_radians();
+    let (d, dir) = (sc.d, sc.dir);
+    let sdir = dir.join(split);
+    let cams = cameras(d, &sc.mesh, &sc.ranges, n, stream);
+    let frames: Vec<_> = cams
             .iter()
             .enumerate()
             .map(|(k, c)| {
                 serde_json::json!({"file_path": format!("Image/{k:03}_0001"), "transform_matrix": fipt_c2w(c)})
             })
             .collect();
-        crate::output::write_json(
-            &sdir.join("transforms.json"),
-            &serde_json::json!({"camera_angle_x": fov, "frames": frames}),
-        )?;
-        for (k, c) in cams.iter().enumerate() {
-            let (maps, ids, sem) = gt_maps(
-                c,
-                &accel,
-                &mesh,
-                &mats,
-                &meta,
-                &tri_part,
-                d,
-                (stream << 16) | k as u64,
-            );
-            maps.write(&sdir, k)?;
-            let (w, h) = (c.width, c.height);
-            for (kind, v) in [(MapKind::IndexMA, ids), (MapKind::Segmentation, sem)] {
-                Image::from_data(w, h, 3, v)
-                    .write_exr(&sdir.join(kind.folder()).join(kind.file_name(k)))?;
-            }
+    crate::output::write_json(
+        &sdir.join("transforms.json"),
+        &serde_json::json!({"camera_angle_x": fov, "frames": frames}),
+    )?;
+    for (k, c) in cams.iter().enumerate() {
+        let (maps, ids, sem) = gt_maps(sc, c, (stream << 16) | k as u64);
+        maps.write(&sdir, k)?;
+        let (w, h) = (c.width, c.height);
+        for (kind, v) in [(MapKind::IndexMA, ids), (MapKind::Segmentation, sem)] {
+            Image::from_data(w, h, 3, v)
+                .write_exr(&sdir.join(kind.folder()).join(kind.file_name(k)))?;
         }
-        let refs: Vec<CamRef> = cams
-            .iter()
-            .enumerate()
-            .map(|(k, c)| (k, c.clone(), None))
-            .collect();
-        let picked: Vec<&CamRef> = refs.iter().collect();
+    }
+    let refs: Vec<CamRef> = cams
+        .iter()
+        .enumerate()
+        .map(|(k, c)| (k, c.clone(), None))
+        .collect();
+    let picked: Vec<&CamRef> = refs.iter().collect();
+    let truth = TrueScene {
+        dir,
+        mesh: &sc.mesh,
+        meta: &sc.meta,
+    };
+    render_truth(
+        &truth,
+        &Edits::default(),
+        &picked,
+        path,
+        LightSelection::Power,
+        &sdir.join("Image"),
+        quiet,
+    )?;
+    if split == "val" {
+        let edits = Edits {
+            relight: Some(&d.relight),
+            meta: Some(&sc.meta),
+            inserted: &[],
+        };
         render_truth(
-            dir,
-            &mesh,
-            &meta,
-            &Edits::default(),
+            &truth,
+            &edits,
             &picked,
-            &path,
+            path,
             LightSelection::Power,
-            &sdir.join("Image"),
+            &sdir.join("Relight"),
             quiet,
         )?;
-        if split == "val" {
-            let edits = Edits {
-                relight: Some(&d.relight),
-                meta: Some(&meta),
-                inserted: &[],
-            };
-            render_truth(
-                dir,
-                &mesh,
-                &meta,
-                &edits,
-                &picked,
-                &path,
-                LightSelection::Power,
-                &sdir.join("Relight"),
-                quiet,
-            )?;
-        }
     }
     Ok(())
 }

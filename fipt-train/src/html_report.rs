@@ -15,7 +15,7 @@
 use crate::output::write_png;
 use crate::pipeline::evaluate::{self, PartRow};
 use crate::pipeline::predict::{ViewMaps, rgb_of_scalar};
-use crate::report::RunReport;
+use crate::pipeline::report::RunReport;
 use anyhow::{Context, Result};
 use fipt_bake::emitters::Emitter;
 use fipt_core::model::step::SegMode;
@@ -72,43 +72,40 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
     maps.extend([MapKind::BaseColor, MapKind::Metallic, MapKind::Relight]);
     let ds = Dataset::load(scene, &LoadOptions { maps, val: true })?;
     // The images go into a staged folder that replaces `report/` whole.
-    let img_final = out.join("report");
-    let img_dir = crate::scene_model::sibling(&img_final, "tmp");
-    let _ = std::fs::remove_dir_all(&img_dir);
-    std::fs::create_dir_all(&img_dir)
-        .with_context(|| format!("{}: cannot create", img_dir.display()))?;
-    let mut h = String::new();
-    let _ = write!(
-        h,
-        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>fipt: {}</title><style>{STYLE}</style></head><body>",
-        esc(&run.scene)
-    );
-    let _ = write!(
-        h,
-        "<h1>fipt run</h1><p>Scene <code>{}</code>, {} train views{}; {} training steps, {} hash-grid levels. Scene model: <code>{}</code>{}.</p>",
-        esc(&run.scene),
-        ds.train.views.len(),
-        ds.val
-            .as_ref()
-            .map_or(String::new(), |v| format!(", {} val views", v.views.len())),
-        run.grid.steps,
-        run.grid.levels,
-        esc(run.model_dir.as_deref().unwrap_or("-")),
-        run.zoo_entry.as_deref().map_or(String::new(), |z| format!(
-            ", zoo entry <code>{}</code>",
-            esc(z)
-        ))
-    );
-    metric_tables(&mut h, &run, &ds);
-    times(&mut h, &run);
-    views(&mut h, &ds, out, &img_dir)?;
-    parts(&mut h, run.parts.as_deref());
-    emitters(&mut h, out, &ds)?;
-    hops(&mut h, &run, &ds);
-    loss_curves(&mut h, &run);
-    sheet(&mut h, out, &img_dir)?;
-    h.push_str("</body></html>\n");
-    crate::scene_model::replace_dir(&img_dir, &img_final)?;
+    let h = crate::output::staged_dir(&out.join("report"), |img_dir| {
+        let mut h = String::new();
+        let _ = write!(
+            h,
+            "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>fipt: {}</title><style>{STYLE}</style></head><body>",
+            esc(&run.scene)
+        );
+        let _ = write!(
+            h,
+            "<h1>fipt run</h1><p>Scene <code>{}</code>, {} train views{}; {} training steps, {} hash-grid levels. Scene model: <code>{}</code>{}.</p>",
+            esc(&run.scene),
+            ds.train.views.len(),
+            ds.val
+                .as_ref()
+                .map_or(String::new(), |v| format!(", {} val views", v.views.len())),
+            run.grid.steps,
+            run.grid.levels,
+            esc(run.model_dir.as_deref().unwrap_or("-")),
+            run.zoo_entry.as_deref().map_or(String::new(), |z| format!(
+                ", zoo entry <code>{}</code>",
+                esc(z)
+            ))
+        );
+        metric_tables(&mut h, &run, &ds);
+        times(&mut h, &run);
+        views(&mut h, &ds, out, img_dir)?;
+        parts(&mut h, run.parts.as_deref());
+        emitters(&mut h, out, &ds)?;
+        hops(&mut h, &run, &ds);
+        loss_curves(&mut h, &run);
+        sheet(&mut h, out, img_dir)?;
+        h.push_str("</body></html>\n");
+        Ok(h)
+    })?;
     let page = out.join("report.html");
     fipt_core::io::write_bytes_atomic(&page, h.as_bytes())?;
     Ok(page)
@@ -125,7 +122,7 @@ fn metric_tables(h: &mut String, run: &RunReport, ds: &Dataset) {
             let _ = write!(h, "<th>round {}</th>", r.round);
         }
         h.push_str("<th>best constant</th></tr>");
-        type Get = fn(&crate::report::RoundReport) -> Option<f64>;
+        type Get = fn(&crate::pipeline::report::RoundReport) -> Option<f64>;
         let rows: [(&str, Get, Option<f64>, usize); 5] = [
             (
                 "k_d PSNR (dB)",
@@ -478,7 +475,7 @@ fn loss_curves(h: &mut String, run: &RunReport) {
     if curves.is_empty() && !run.train_log.step_total.is_empty() {
         curves.push((
             "last fit".into(),
-            crate::report::binned(&run.train_log.step_total, 200),
+            crate::pipeline::report::binned(&run.train_log.step_total, 200),
         ));
     }
     let pts: Vec<(u64, f32)> = curves

@@ -11,13 +11,13 @@ pub mod check;
 pub mod config;
 pub mod demo;
 pub mod html_report;
+pub mod image_metrics;
 pub mod interrupt;
 pub mod learned;
-pub mod metrics;
 pub mod output;
 pub mod pipeline;
 pub mod progress;
 pub mod render;
-pub mod report;
+
 pub mod scene_model;
 pub mod zoo;

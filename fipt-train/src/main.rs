@@ -139,77 +139,7 @@ enum Cmd {
     /// Path-traced images: of a recovered scene model (`--model`) or of the true scene
     /// (`--truth`), from a split's cameras or new ones, relit, with inserted objects.
     #[command(group(clap::ArgGroup::new("source").required(true).args(["truth", "model"])))]
-    Render {
-        /// The scene folder: its cameras, reference images and ground truth (required with
-        /// --truth; with --model, for its cameras and scores).
-        #[arg(long)]
-        scene: Option<PathBuf>,
-        #[arg(long)]
-        out: PathBuf,
-        /// Render the true scene (materials, textures and emitters of scene_meta.json).
-        #[arg(long)]
-        truth: bool,
-        /// Render a recovered scene model: a model folder, or a name in the zoo.
-        #[arg(long)]
-        model: Option<String>,
-        /// Where a model's field is queried: flex (host), or wgpu (the table on the device;
-        /// needs the cargo feature).
-        #[arg(long, default_value = "flex")]
-        backend: BackendKind,
-        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
-        #[arg(long)]
-        zoo: Option<PathBuf>,
-        /// Objects to insert (JSON: OBJ files or shapes, placement, material or emission).
-        #[arg(long)]
-        insert: Option<PathBuf>,
-        /// Pure path tracing: no L′ on rough secondary hits (models; relighting never uses it).
-        #[arg(long)]
-        no_cache: bool,
-        /// Read the exact learned field at every hit (default: a voxel cache after the first
-        /// segment; camera hits are always exact).
-        #[arg(long)]
-        exact_materials: bool,
-        /// Relighting: switched-off emitters are black (the reference) instead of reflecting
-        /// with the learned field.
-        #[arg(long)]
-        off_black: bool,
-        /// Models: fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so
-        /// the exact field is queried once per position, not per sample.
-        #[arg(long, default_value_t = 16)]
-        pixel_positions: usize,
-        /// Which cameras: train or val.
-        #[arg(long, default_value = "val")]
-        split: String,
-        /// Only these views (comma-separated; default all).
-        #[arg(long, value_delimiter = ',')]
-        views: Vec<usize>,
-        /// New cameras from a transforms.json (FIPT or nerfstudio) instead of the split's.
-        #[arg(long)]
-        cameras: Option<PathBuf>,
-        #[arg(long, default_value_t = 512)]
-        spp: usize,
-        /// Maximum path length in segments (Mitsuba's max_depth).
-        #[arg(long, default_value_t = 7)]
-        max_depth: usize,
-        /// relight.json: emitters off or rescaled (part names or "all") and new emitters
-        /// added; renders go to Relight/.
-        #[arg(long)]
-        relight: Option<PathBuf>,
-        /// Emitter selection for next-event estimation: uniform, area or power.
-        #[arg(long, default_value = "power")]
-        light_selection: fipt_bake::emitters::LightSelection,
-        /// Russian roulette from this depth on (default off).
-        #[arg(long)]
-        rr_depth: Option<usize>,
-        /// BRDF lobe choice: luminance (by lobe reflectance) or half (the reference's 50/50).
-        #[arg(long, default_value = "luminance")]
-        lobe: fipt_core::brdf::LobeChoice,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// No progress bar; print render.json to stdout.
-        #[arg(long)]
-        json: bool,
-    },
+    Render(RenderArgs),
     /// The model zoo: scene models recovered by `run`, by name.
     Zoo {
         /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
@@ -232,6 +162,122 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
+}
+
+/// The flags of `render`.
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// The scene folder: its cameras, reference images and ground truth (required with
+    /// --truth; with --model, for its cameras and scores).
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    #[arg(long)]
+    out: PathBuf,
+    /// Render the true scene (materials, textures and emitters of scene_meta.json).
+    #[arg(long)]
+    truth: bool,
+    /// Render a recovered scene model: a model folder, or a name in the zoo.
+    #[arg(long)]
+    model: Option<String>,
+    /// Where a model's field is queried: flex (host), or wgpu (the table on the device;
+    /// needs the cargo feature).
+    #[arg(long, default_value = "flex")]
+    backend: BackendKind,
+    /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+    #[arg(long)]
+    zoo: Option<PathBuf>,
+    /// Objects to insert (JSON: OBJ files or shapes, placement, material or emission).
+    #[arg(long)]
+    insert: Option<PathBuf>,
+    /// Pure path tracing: no L′ on rough secondary hits (models; relighting never uses it).
+    #[arg(long)]
+    no_cache: bool,
+    /// Read the exact learned field at every hit (default: a voxel cache after the first
+    /// segment; camera hits are always exact).
+    #[arg(long)]
+    exact_materials: bool,
+    /// Relighting: switched-off emitters are black (the reference) instead of reflecting
+    /// with the learned field.
+    #[arg(long)]
+    off_black: bool,
+    /// Models: fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so
+    /// the exact field is queried once per position, not per sample.
+    #[arg(long, default_value_t = 16)]
+    pixel_positions: usize,
+    /// Which cameras: train or val.
+    #[arg(long, default_value = "val")]
+    split: String,
+    /// Only these views (comma-separated; default all).
+    #[arg(long, value_delimiter = ',')]
+    views: Vec<usize>,
+    /// New cameras from a transforms.json (FIPT or nerfstudio) instead of the split's.
+    #[arg(long)]
+    cameras: Option<PathBuf>,
+    #[arg(long, default_value_t = 512)]
+    spp: usize,
+    /// Maximum path length in segments (Mitsuba's max_depth).
+    #[arg(long, default_value_t = 7)]
+    max_depth: usize,
+    /// relight.json: emitters off or rescaled (part names or "all") and new emitters
+    /// added; renders go to Relight/.
+    #[arg(long)]
+    relight: Option<PathBuf>,
+    /// Emitter selection for next-event estimation: uniform, area or power.
+    #[arg(long, default_value = "power")]
+    light_selection: fipt_bake::emitters::LightSelection,
+    /// Russian roulette from this depth on (default off).
+    #[arg(long)]
+    rr_depth: Option<usize>,
+    /// BRDF lobe choice: luminance (by lobe reflectance) or half (the reference's 50/50).
+    #[arg(long, default_value = "luminance")]
+    lobe: fipt_core::brdf::LobeChoice,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// No progress bar; print render.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+impl RenderArgs {
+    /// The render job these flags ask for.
+    fn job(self) -> anyhow::Result<fipt_train::render::RenderJob> {
+        let p = self.pixel_positions;
+        if p.isqrt().pow(2) != p {
+            anyhow::bail!("--pixel-positions {p}: must be a square (0, 1, 4, 9, 16, ...)");
+        }
+        let source = match self.model {
+            Some(name_or_dir) => fipt_train::render::Source::Model {
+                name_or_dir,
+                zoo: fipt_train::zoo::working(self.zoo.as_deref()),
+            },
+            None => fipt_train::render::Source::Truth,
+        };
+        Ok(fipt_train::render::RenderJob {
+            scene: self.scene,
+            out: self.out,
+            source,
+            split: self.split,
+            views: self.views,
+            cameras: self.cameras,
+            relight: self.relight,
+            insert: self.insert,
+            cache: !self.no_cache,
+            material_cache: !self.exact_materials,
+            off_reflect: !self.off_black,
+            selection: self.light_selection,
+            path: fipt_bake::integrators::path::PathConfig {
+                spp: self.spp,
+                max_depth: self.max_depth,
+                rr_depth: self.rr_depth,
+                lobe: self.lobe,
+                seed: self.seed,
+                pixel_positions: p,
+                ..Default::default()
+            },
+            quiet: self.json,
+            backend: self.backend,
+        })
+    }
 }
 
 #[derive(Subcommand)]
@@ -326,31 +372,7 @@ enum BenchCmd {
     },
     /// Median time of one training step of the fit (reference and CPU-sized models, part and
     /// semantic losses, shuffled batches of a realistic pixel store).
-    Step {
-        /// Backend(s) to time: flex, wgpu, ndarray (default: flex).
-        #[arg(long)]
-        backend: Vec<BackendKind>,
-        #[arg(long)]
-        json: bool,
-        #[arg(long, default_value_t = 8192)]
-        batch: usize,
-        /// Timed steps (after 2 warm-up steps).
-        #[arg(long, default_value_t = 10)]
-        steps: usize,
-        /// Also time the peers' `--cpu-config` sizes (16 levels, 2^16 entries, scale 1.3).
-        #[arg(long)]
-        peer_sizes: bool,
-        /// Where the hash grid lives: auto (on the device for wgpu), host or device.
-        #[arg(long, default_value = "auto")]
-        grid: fipt_train::config::GridPlace,
-        /// Time only the part loss (the default config's) instead of both segmentation losses.
-        #[arg(long)]
-        part_only: bool,
-        /// Run the MLPs as burn graph ops on the CPU too, instead of the fused host MLPs (for
-        /// comparison).
-        #[arg(long)]
-        burn_nets: bool,
-    },
+    Step(fipt_train::bench::step::StepArgs),
 }
 
 fn main() {
@@ -364,7 +386,19 @@ fn main() {
     if matches!(cmd, Cmd::Demo { .. } | Cmd::Run { .. }) {
         fipt_train::interrupt::install();
     }
-    let res = match cmd {
+    if let Err(e) = dispatch(cmd) {
+        if let Some(i) = e.downcast_ref::<fipt_train::interrupt::Interrupted>() {
+            eprintln!("{i}");
+            std::process::exit(130);
+        }
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+/// Runs one command.
+fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
+    match cmd {
         // Without --quiet the run has printed the report's path as its last line already.
         Cmd::Demo { out, quiet } => fipt_train::demo::demo(&out, quiet).map(|p| {
             if quiet {
@@ -372,68 +406,28 @@ fn main() {
             }
         }),
         Cmd::Check { scene, json } => check::run(&scene, json),
-        Cmd::Bake { job, json } => job.config().and_then(|cfg| {
-            let r = pipeline::bake_job::bake_job(&job.scene, &job.out, &cfg, json)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
-            } else {
-                r.print();
-            }
-            Ok(())
-        }),
+        Cmd::Bake { job, json } => {
+            let r = pipeline::bake_job::bake_job(&job.scene, &job.out, &job.config()?, json)?;
+            print_json_or(json, &r, || r.print())
+        }
         Cmd::Landscape {
             job,
             oracle,
             fitted,
             json,
-        } => job.config().and_then(|cfg| {
+        } => {
+            let cfg = job.config()?;
             let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, oracle, fitted, json)?;
             if json {
-                let s = std::fs::read_to_string(job.out.join("landscape.json"))?;
-                println!("{s}");
-                return Ok(());
-            }
-            for (name, rows) in &tables {
-                println!("\n{name}: argmin over σ at the true a and m");
                 println!(
-                    "part                  pixels   σ true  m true   argmin data   argmin data+prior   render/photo"
+                    "{}",
+                    std::fs::read_to_string(job.out.join("landscape.json"))?
                 );
-                for r in rows {
-                    println!(
-                        "{:<20} {:>7}   {:>6.2}  {:>6.2}   {:>11.2}   {:>17.2}   {:>12.3}",
-                        r.name,
-                        r.pixels,
-                        r.sigma_true,
-                        r.m_true,
-                        r.argmin_data,
-                        r.argmin_total,
-                        r.render_ratio
-                    );
-                }
-                if rows.iter().any(|r| r.fitted.is_some()) {
-                    println!("{name}: the fitted model (data terms x 1e4; at its a and m, σ swept)");
-                    println!(
-                        "part                 data at truth   fit σ   fit m   fit data   argmin at fit a, m   data there"
-                    );
-                    for r in rows {
-                        if let Some(f) = &r.fitted {
-                            let best = f.data.iter().cloned().fold(f64::INFINITY, f64::min);
-                            println!(
-                                "{:<20} {:>13.3}   {:>5.2}   {:>5.2}   {:>8.3}   {:>18.2}   {:>10.3}",
-                                r.name,
-                                r.loss_true * 1e4,
-                                f.sigma,
-                                f.metallic,
-                                f.loss * 1e4,
-                                f.argmin_data,
-                                best * 1e4
-                            );
-                        }
-                    }
-                }
+            } else {
+                pipeline::landscape_job::print_tables(&tables);
             }
             Ok(())
-        }),
+        }
         Cmd::Run {
             job,
             backend,
@@ -442,14 +436,16 @@ fn main() {
             zoo,
             name,
             no_zoo,
-        } => job.config().and_then(|mut cfg| {
+        } => {
+            let mut cfg = job.config()?;
             if let Some(b) = backend {
                 cfg.backend = b;
             }
             let zoo = if no_zoo {
                 None
             } else {
-                let dir = fipt_train::zoo::resolve(zoo.as_deref(), &fipt_train::zoo::beside(&job.out));
+                let dir =
+                    fipt_train::zoo::resolve(zoo.as_deref(), &fipt_train::zoo::beside(&job.out));
                 let name =
                     name.unwrap_or_else(|| pipeline::default_model_name(&job.scene, cfg.seed));
                 fipt_train::zoo::check_name(&name)?;
@@ -461,196 +457,116 @@ fn main() {
                 zoo,
             };
             let r = pipeline::run_with(&job.scene, &job.out, &cfg, &opts)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
-            }
-            Ok(())
-        }),
-        Cmd::Zoo { zoo, what } => {
-            let z = fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()));
-            match what {
-                ZooCmd::List { json } => z.list().and_then(|entries| {
-                    if json {
-                        println!("{}", serde_json::to_string_pretty(&entries)?);
-                    } else {
-                        println!("zoo: {}", z.dir.display());
-                        fipt_train::zoo::print_list(&entries);
-                    }
-                    Ok(())
-                }),
-                ZooCmd::Show { name } => z.locate(&name).and_then(|dir| {
-                    let m = fipt_train::scene_model::read_manifest(&dir)?;
-                    fipt_train::scene_model::verify_files(&dir, &m)?;
-                    println!("{}", serde_json::to_string_pretty(&m)?);
-                    Ok(())
-                }),
-                ZooCmd::Rm { name } => z.remove(&name).map(|_| {
-                    println!("removed {}", z.dir.join(&name).display());
-                }),
-                ZooCmd::Import { dir, name } => z.import(&dir, name.as_deref()).map(|to| {
-                    println!("imported {} as {}", dir.display(), to.display());
-                }),
-            }
+            print_json_or(json, &r, || {})
         }
-        Cmd::Report { scene, out } => {
-            fipt_train::html_report::write(&scene, &out).map(|p| println!("report: {}", p.display()))
-        }
+        Cmd::Zoo { zoo, what } => zoo_cmd(zoo, what),
+        Cmd::Report { scene, out } => fipt_train::html_report::write(&scene, &out)
+            .map(|p| println!("report: {}", p.display())),
         Cmd::Eval {
             scene,
             out,
             model,
             zoo,
             json,
-        } => match model {
-            Some(m) => fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
-            .locate(&m)
-            .and_then(|dir| pipeline::eval_model(&scene, &dir, &out)),
-            None => pipeline::eval(&scene, &out),
-        }
-        .and_then(|r| {
-            if json {
-                println!("{}", serde_json::to_string_pretty(&r)?);
-            } else {
-                fipt_train::report::print_metrics(&r.metrics, r.parts.as_deref());
-            }
-            Ok(())
-        }),
-        Cmd::Render {
-            scene,
-            out,
-            truth: _,
-            model,
-            backend,
-            zoo,
-            insert,
-            no_cache,
-            exact_materials,
-            off_black,
-            pixel_positions,
-            split,
-            views,
-            cameras,
-            spp,
-            max_depth,
-            relight,
-            light_selection,
-            rr_depth,
-            lobe,
-            seed,
-            json,
         } => {
-            let source = match model {
-                Some(name_or_dir) => fipt_train::render::Source::Model {
-                    name_or_dir,
-                    zoo: fipt_train::zoo::working(zoo.as_deref()),
-                },
-                None => fipt_train::render::Source::Truth,
-            };
-            let job = fipt_train::render::RenderJob {
-                scene,
-                out,
-                source,
-                split,
-                views,
-                cameras,
-                relight,
-                insert,
-                cache: !no_cache,
-                material_cache: !exact_materials,
-                off_reflect: !off_black,
-                selection: light_selection,
-                path: fipt_bake::integrators::path::PathConfig {
-                    spp,
-                    max_depth,
-                    rr_depth,
-                    lobe,
-                    seed,
-                    pixel_positions,
-                    ..Default::default()
-                },
-                quiet: json,
-                backend,
-            };
-            if pixel_positions.isqrt().pow(2) != pixel_positions {
-                eprintln!("error: --pixel-positions {pixel_positions}: must be a square (0, 1, 4, 9, 16, ...)");
-                std::process::exit(1);
-            }
-            fipt_train::render::render(&job).and_then(|r| {
-                if json {
-                    println!("{}", serde_json::to_string_pretty(&r)?);
-                } else {
-                    r.print(&job.out);
+            let r = match model {
+                Some(m) => {
+                    let dir = fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
+                        .locate(&m)?;
+                    pipeline::eval_model(&scene, &dir, &out)?
                 }
-                Ok(())
+                None => pipeline::eval(&scene, &out)?,
+            };
+            print_json_or(json, &r, || {
+                pipeline::report::print_metrics(&r.metrics, r.parts.as_deref())
             })
         }
-        Cmd::DefaultConfig => serde_json::to_string_pretty(&fipt_train::config::Config::default())
-            .map(|s| println!("{s}"))
-            .map_err(Into::into),
-        Cmd::Bench { what } => match what {
-            BenchCmd::Trace {
-                scene,
-                json,
-                rays,
-                reps,
-                mesh_scale,
-            } => bench::trace(scene.as_deref(), json, rays, reps, mesh_scale),
-            BenchCmd::Bake { json, reps } => bench::bake(json, reps),
-            BenchCmd::Refine {
-                scene,
-                run,
-                json,
-                views,
-            } => bench::refine(&scene, &run, json, views),
-            BenchCmd::Render {
-                scene,
-                json,
-                spp,
-                views,
-                reps,
-            } => bench::render(&scene, json, spp, views, reps),
-            BenchCmd::Query {
-                model,
-                zoo,
-                json,
-                batch,
-                reps,
-            } => fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
-            .locate(&model)
-            .and_then(|dir| bench::query(&dir, json, batch, reps)),
-            BenchCmd::Step {
-                backend,
-                json,
-                batch,
-                steps,
-                peer_sizes,
-                grid,
-                part_only,
-                burn_nets,
-            } => {
-                let b = if backend.is_empty() {
-                    vec![BackendKind::Flex]
-                } else {
-                    backend
-                };
-                {
-                    use fipt_core::model::step::SegMode;
-                    let modes: &[SegMode] = if part_only {
-                        &[SegMode::Part]
-                    } else {
-                        &[SegMode::Part, SegMode::Semantic]
-                    };
-                    bench::step(&b, json, batch, steps, peer_sizes, grid, modes, burn_nets)
-                }
-            }
-        },
-    };
-    if let Err(e) = res {
-        if let Some(i) = e.downcast_ref::<fipt_train::interrupt::Interrupted>() {
-            eprintln!("{i}");
-            std::process::exit(130);
+        Cmd::Render(args) => {
+            let json = args.json;
+            let job = args.job()?;
+            let r = fipt_train::render::render(&job)?;
+            print_json_or(json, &r, || r.print(&job.out))
         }
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
+        Cmd::DefaultConfig => print_json_or(true, &fipt_train::config::Config::default(), || {}),
+        Cmd::Bench { what } => bench_cmd(what),
+    }
+}
+
+/// Prints `v` as pretty JSON with `json`, else calls `human`.
+fn print_json_or(
+    json: bool,
+    v: &impl serde::Serialize,
+    human: impl FnOnce(),
+) -> anyhow::Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(v)?);
+    } else {
+        human();
+    }
+    Ok(())
+}
+
+/// `zoo list | show | rm | import`.
+fn zoo_cmd(zoo: Option<PathBuf>, what: ZooCmd) -> anyhow::Result<()> {
+    let z = fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()));
+    match what {
+        ZooCmd::List { json } => {
+            let entries = z.list()?;
+            print_json_or(json, &entries, || {
+                println!("zoo: {}", z.dir.display());
+                fipt_train::zoo::print_list(&entries);
+            })
+        }
+        ZooCmd::Show { name } => {
+            let dir = z.locate(&name)?;
+            let m = fipt_train::scene_model::read_manifest(&dir)?;
+            fipt_train::scene_model::verify_files(&dir, &m)?;
+            print_json_or(true, &m, || {})
+        }
+        ZooCmd::Rm { name } => z.remove(&name).map(|_| {
+            println!("removed {}", z.dir.join(&name).display());
+        }),
+        ZooCmd::Import { dir, name } => z.import(&dir, name.as_deref()).map(|to| {
+            println!("imported {} as {}", dir.display(), to.display());
+        }),
+    }
+}
+
+/// `bench trace | bake | refine | render | query | step`.
+fn bench_cmd(what: BenchCmd) -> anyhow::Result<()> {
+    match what {
+        BenchCmd::Trace {
+            scene,
+            json,
+            rays,
+            reps,
+            mesh_scale,
+        } => bench::trace::trace(scene.as_deref(), json, rays, reps, mesh_scale),
+        BenchCmd::Bake { json, reps } => bench::bake::bake(json, reps),
+        BenchCmd::Refine {
+            scene,
+            run,
+            json,
+            views,
+        } => bench::refine::refine(&scene, &run, json, views),
+        BenchCmd::Render {
+            scene,
+            json,
+            spp,
+            views,
+            reps,
+        } => bench::render::render(&scene, json, spp, views, reps),
+        BenchCmd::Query {
+            model,
+            zoo,
+            json,
+            batch,
+            reps,
+        } => {
+            let dir = fipt_train::zoo::Zoo::new(fipt_train::zoo::working(zoo.as_deref()))
+                .locate(&model)?;
+            bench::query::query(&dir, json, batch, reps)
+        }
+        BenchCmd::Step(args) => bench::step::step(&args),
     }
 }

@@ -1,10 +1,11 @@
-//! Output files: JSON and PNG previews, each written to a temporary name and renamed.
+//! Output files: JSON and PNG previews, each written to a temporary name and renamed, and
+//! output folders, each staged under a temporary name and put in place whole.
 //!
-//! Owns: those writers. Must not touch: what is written.
+//! Owns: those writers and the staging of folders. Must not touch: what is written.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use fipt_core::io::{write_atomic, write_bytes_atomic};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Writes `v` as pretty JSON, atomically.
 pub fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {
@@ -16,7 +17,7 @@ pub fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {
 pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32], scale: f32) -> Result<()> {
     let bytes: Vec<u8> = rgb
         .iter()
-        .map(|&x| (crate::metrics::gamma(x * scale) * 255.0 + 0.5) as u8)
+        .map(|&x| (crate::image_metrics::gamma(x * scale) * 255.0 + 0.5) as u8)
         .collect();
     write_atomic(path, |tmp| {
         image::save_buffer_with_format(
@@ -61,4 +62,53 @@ pub fn write_sheet(
         }
     }
     write_png(path, sw, sh, &rgb, 1.0)
+}
+
+/// `dir` with `.name.<tag>-<pid>.tmp` as its last component (same parent, so renames stay on
+/// one file system; the `.tmp` ending marks it as a temporary a later run may remove).
+pub fn sibling(dir: &Path, tag: &str) -> PathBuf {
+    let name = dir
+        .file_name()
+        .map_or("folder".into(), |n| n.to_string_lossy().into_owned());
+    dir.with_file_name(format!(".{name}.{tag}-{}.tmp", std::process::id()))
+}
+
+/// Moves the complete folder `from` to `to`, replacing `to`: the old folder is first renamed
+/// aside, so `to` is the old complete folder, then absent for an instant, then the new one; a
+/// run killed in that instant leaves the old copy aside, which the next `run` puts back
+/// (`pipeline::checkpoint::remove_stale_tmp`).
+pub fn replace_dir(from: &Path, to: &Path) -> Result<()> {
+    if let Some(p) = to.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(p).with_context(|| format!("{}: cannot create", p.display()))?;
+    }
+    let old = sibling(to, "old");
+    let had_old = to.exists();
+    if had_old {
+        let _ = std::fs::remove_dir_all(&old);
+        std::fs::rename(to, &old).with_context(|| format!("{}: cannot replace", to.display()))?;
+    }
+    std::fs::rename(from, to).with_context(|| format!("{}: cannot write", to.display()))?;
+    if had_old {
+        let _ = std::fs::remove_dir_all(&old);
+    }
+    Ok(())
+}
+
+/// Writes the folder `dir` whole: `write` fills a staged sibling folder (created empty), which
+/// then replaces `dir` (`replace_dir`); when `write` fails the staged folder is removed and
+/// `dir` stays as it was.
+pub fn staged_dir<T>(dir: &Path, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let tmp = sibling(dir, "tmp");
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
+    match write(&tmp) {
+        Ok(v) => {
+            replace_dir(&tmp, dir)?;
+            Ok(v)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Err(e)
+        }
+    }
 }

@@ -16,8 +16,8 @@
 //! Owns: the render job (scene assembly, outputs, scores, `render.json`). Must not touch: light
 //! transport (fipt-bake), the model's inference (`learned`).
 
+use crate::image_metrics::psnr_gamma;
 use crate::learned::LearnedMaterials;
-use crate::metrics::psnr_gamma;
 use crate::output::{write_json, write_png};
 use crate::progress::progress_bar;
 use anyhow::{Result, bail};
@@ -286,10 +286,8 @@ pub struct RecoveredOptions {
     /// always read the exact field.
     pub material_cache: bool,
     /// Switched-off emitters reflect light with the learned field at their surface. A departure
-    /// from the reference's relighting, which makes every estimated emitter black: on fipt-room
-    /// (whose relit photos keep the switched-off lights' BRDFs, as a real room does) it raises
-    /// relighting from 29.4 to 32.8 dB mean, 20.1 to 32.7 dB on the view of the ceiling light
-    /// (`configs/fast.json`'s model, 32 spp).
+    /// from the reference's relighting, which makes every estimated emitter black
+    /// (`docs/departures/off-reflect.md`).
     pub off_reflect: bool,
 }
 
@@ -391,12 +389,16 @@ pub fn render_recovered(
     })
 }
 
-/// Renders the true scene of `meta` with `edits` from `cams` into `dir`.
-#[allow(clippy::too_many_arguments)]
+/// A scene's true geometry and materials (`scene_meta.json`, textures in its folder).
+pub struct TrueScene<'a> {
+    pub dir: &'a Path,
+    pub mesh: &'a Mesh,
+    pub meta: &'a SceneMeta,
+}
+
+/// Renders the true scene with `edits` from `cams` into `dir`.
 pub fn render_truth(
-    scene_dir: &Path,
-    mesh: &Mesh,
-    meta: &SceneMeta,
+    truth_scene: &TrueScene,
     edits: &Edits,
     cams: &[&CamRef],
     cfg: &PathConfig,
@@ -404,6 +406,11 @@ pub fn render_truth(
     dir: &Path,
     quiet: bool,
 ) -> Result<Rendered> {
+    let TrueScene {
+        dir: scene_dir,
+        mesh,
+        meta,
+    } = *truth_scene;
     let n = mesh.num_triangles();
     let (full, added, mats) = append(mesh, edits);
     let parts = part_names(Some(meta), n);
@@ -457,22 +464,120 @@ struct SceneViews {
 /// Renders the job's views; writes `OUT/<split>/Image/{k:03}_0001.exr` (or `Relight/`), PNG
 /// previews and `OUT/render.json`.
 pub fn render(job: &RenderJob) -> Result<RenderReport> {
-    let model = match &job.source {
-        Source::Truth => None,
-        Source::Model { name_or_dir, zoo } => {
-            let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
-            let device = job.backend.device().map_err(anyhow::Error::msg)?;
-            let mut m = crate::scene_model::SceneModel::load(&dir, &device)?;
-            if job.backend.is_gpu() {
-                m.model.upload_table();
-            }
-            Some(m)
-        }
-    };
+    let model = load_model(job)?;
     if !matches!(job.split.as_str(), "train" | "val") {
         bail!("--split {}: expected train or val", job.split);
     }
-    // The photos (`Image/`) are always loaded; `Relight/` where relighting.
+    let views = load_scene_views(job, model.is_some())?;
+    let meta = views.as_ref().and_then(|v| v.meta.as_ref());
+    let relight = job
+        .relight
+        .as_ref()
+        .map(|p| Relight::load(p, meta))
+        .transpose()?;
+    let inserted = job
+        .insert
+        .as_ref()
+        .map(|p| load_insert(p))
+        .transpose()?
+        .unwrap_or_default();
+    let split = views.as_ref().and_then(|v| v.split.as_ref());
+    let cams = job_cameras(job, split, model.as_ref(), !inserted.is_empty())?;
+    if let Some(&k) = job.views.iter().find(|&&k| k >= cams.len()) {
+        bail!("view {k}: there are {} cameras", cams.len());
+    }
+    let picked: Vec<&CamRef> = if job.views.is_empty() {
+        cams.iter().collect()
+    } else {
+        job.views.iter().map(|&k| &cams[k]).collect()
+    };
+    let folder = if job.relight.is_some() {
+        "Relight"
+    } else {
+        "Image"
+    };
+    let group = if job.cameras.is_some() {
+        "cameras"
+    } else {
+        job.split.as_str()
+    };
+    let dir = job.out.join(group).join(folder);
+    let edits = Edits {
+        relight: relight.as_ref(),
+        meta,
+        inserted: &inserted,
+    };
+    let t_render = Instant::now();
+    let mesh = views.as_ref().and_then(|v| v.mesh.as_ref());
+    let (source, r) = match &model {
+        Some(m) => render_model(job, m, mesh, &edits, &picked, &dir)?,
+        None => {
+            let (Some(mesh), Some(scene)) = (mesh, &job.scene) else {
+                bail!("--truth needs --scene");
+            };
+            let Some(meta) = meta else {
+                bail!(
+                    "{}: --truth needs the scene's ground truth (missing)",
+                    scene.join("scene_meta.json").display()
+                );
+            };
+            let truth = TrueScene {
+                dir: scene,
+                mesh,
+                meta,
+            };
+            let q = job.quiet;
+            let r = render_truth(&truth, &edits, &picked, &job.path, job.selection, &dir, q)?;
+            ("truth".to_string(), r)
+        }
+    };
+    let wall = t_render.elapsed().as_secs_f64();
+    let scores: Vec<f64> = r.views.iter().filter_map(|v| v.psnr_db).collect();
+    let report = RenderReport {
+        source,
+        scene: job
+            .scene
+            .as_ref()
+            .map_or(String::new(), |s| s.display().to_string()),
+        split: group.to_string(),
+        relight: job.relight.is_some(),
+        inserted: inserted.len(),
+        cache: r.cache,
+        spp: job.path.spp,
+        max_depth: job.path.max_depth,
+        light_selection: job.selection,
+        emitter_triangles: r.emitter_triangles,
+        mean_psnr_db: mean(&scores),
+        min_psnr_db: scores.iter().cloned().reduce(f64::min),
+        views: r.views,
+        wall_s: wall,
+        paths_per_s: r.stats.paths as f64 / wall,
+        rays_per_s: (r.stats.rays + r.stats.shadow_rays) as f64 / wall,
+        stats: r.stats,
+        threads: rayon::current_num_threads(),
+    };
+    write_json(&job.out.join("render.json"), &report)?;
+    Ok(report)
+}
+
+/// The job's scene model (its table on the device for a GPU backend); None for `--truth`.
+fn load_model(job: &RenderJob) -> Result<Option<crate::scene_model::SceneModel>> {
+    let Source::Model { name_or_dir, zoo } = &job.source else {
+        return Ok(None);
+    };
+    let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
+    let device = job.backend.device().map_err(anyhow::Error::msg)?;
+    let mut m = crate::scene_model::SceneModel::load(&dir, &device)?;
+    if job.backend.is_gpu() {
+        m.model.upload_table();
+    }
+    Ok(Some(m))
+}
+
+/// What the job reads from its scene folder (None without `--scene`). The photos (`Image/`)
+/// are always loaded, `Relight/` where relighting. A model needs only the split it renders
+/// (the photos of the other may be gone); the true scene needs the whole folder.
+fn load_scene_views(job: &RenderJob, for_model: bool) -> Result<Option<SceneViews>> {
     let opts = LoadOptions {
         maps: if job.relight.is_some() {
             vec![MapKind::Relight]
@@ -481,11 +586,9 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         },
         val: job.split == "val",
     };
-    // A model needs only the split it renders (the photos of the other may be gone); the true
-    // scene needs the whole folder.
-    let views = match &job.scene {
+    Ok(match &job.scene {
         None => None,
-        Some(scene) if model.is_some() && !scene.join("train/transforms.json").is_file() => {
+        Some(scene) if for_model && !scene.join("train/transforms.json").is_file() => {
             let meta_path = scene.join("scene_meta.json");
             let mesh_path = scene.join("scene.obj");
             Some(SceneViews {
@@ -521,24 +624,21 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
                 mesh: Some(ds.mesh),
             })
         }
-    };
-    let meta = views.as_ref().and_then(|v| v.meta.as_ref());
-    let relight = job
-        .relight
-        .as_ref()
-        .map(|p| Relight::load(p, meta))
-        .transpose()?;
-    let inserted = job
-        .insert
-        .as_ref()
-        .map(|p| load_insert(p))
-        .transpose()?
-        .unwrap_or_default();
-    let split = views.as_ref().and_then(|v| v.split.as_ref());
-    // (view index, camera, reference image) of every view to render.
-    let cams: Vec<CamRef> = match (&job.cameras, split) {
+    })
+}
+
+/// (view index, camera, reference image) of every view the job can render: from `--cameras`
+/// (unscored) or the split's views (scored against their photos, or relit photos; not when
+/// objects are inserted, which change the image).
+fn job_cameras<'a>(
+    job: &RenderJob,
+    split: Option<&'a fipt_core::scene::Split>,
+    model: Option<&crate::scene_model::SceneModel>,
+    inserting: bool,
+) -> Result<Vec<CamRef<'a>>> {
+    Ok(match (&job.cameras, split) {
         (Some(file), _) => {
-            let size = match (split, &model) {
+            let size = match (split, model) {
                 (Some(s), _) => (s.width, s.height),
                 (None, Some(m)) => (m.manifest.image_size[0], m.manifest.image_size[1]),
                 (None, None) => bail!("--truth needs --scene"),
@@ -559,128 +659,46 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
                 } else {
                     Some(&v.image)
                 };
-                // An inserted object changes the image: no reference.
-                (k, v.camera.clone(), r.filter(|_| inserted.is_empty()))
+                (k, v.camera.clone(), r.filter(|_| !inserting))
             })
             .collect(),
         (None, None) => bail!("give --scene (its cameras) or --cameras FILE"),
-    };
-    if let Some(&k) = job.views.iter().find(|&&k| k >= cams.len()) {
-        bail!("view {k}: there are {} cameras", cams.len());
+    })
+}
+
+/// Renders a scene model for the job (after checking that the scene's mesh, where there is
+/// one, is the model's); returns the model's name and the renders.
+fn render_model(
+    job: &RenderJob,
+    m: &crate::scene_model::SceneModel,
+    scene_mesh: Option<&Mesh>,
+    edits: &Edits,
+    picked: &[&CamRef],
+    dir: &Path,
+) -> Result<(String, Rendered)> {
+    if let Some(mesh) = scene_mesh
+        && crate::scene_model::mesh_hash(mesh) != m.manifest.mesh_hash
+    {
+        bail!(
+            "{}: the scene's mesh differs from the model's ({}); its cameras would not see the same room",
+            job.scene.as_ref().expect("scene").display(),
+            m.dir.display()
+        );
     }
-    let picked: Vec<&CamRef> = if job.views.is_empty() {
-        cams.iter().collect()
-    } else {
-        job.views.iter().map(|&k| &cams[k]).collect()
+    let rec = Recovered {
+        model: &m.model,
+        mesh: &m.mesh,
+        emitters: &m.emitters,
+        light_field: &m.light_field,
     };
-    let folder = if job.relight.is_some() {
-        "Relight"
-    } else {
-        "Image"
+    let opts = RecoveredOptions {
+        selection: job.selection,
+        cache: job.cache,
+        material_cache: job.material_cache,
+        off_reflect: job.off_reflect,
     };
-    let group = if job.cameras.is_some() {
-        "cameras"
-    } else {
-        job.split.as_str()
-    };
-    let dir = job.out.join(group).join(folder);
-    let edits = Edits {
-        relight: relight.as_ref(),
-        meta,
-        inserted: &inserted,
-    };
-    let t_render = Instant::now();
-    let (source, r) = match &model {
-        Some(m) => {
-            if let Some(mesh) = views.as_ref().and_then(|v| v.mesh.as_ref())
-                && crate::scene_model::mesh_hash(mesh) != m.manifest.mesh_hash
-            {
-                bail!(
-                    "{}: the scene's mesh differs from the model's ({}); its cameras would not see the same room",
-                    job.scene.as_ref().expect("scene").display(),
-                    m.dir.display()
-                );
-            }
-            let rec = Recovered {
-                model: &m.model,
-                mesh: &m.mesh,
-                emitters: &m.emitters,
-                light_field: &m.light_field,
-            };
-            (
-                m.manifest.name.clone(),
-                render_recovered(
-                    &rec,
-                    &edits,
-                    &picked,
-                    &job.path,
-                    &RecoveredOptions {
-                        selection: job.selection,
-                        cache: job.cache,
-                        material_cache: job.material_cache,
-                        off_reflect: job.off_reflect,
-                    },
-                    &dir,
-                    job.quiet,
-                )?,
-            )
-        }
-        None => {
-            let (Some(mesh), Some(scene)) =
-                (views.as_ref().and_then(|v| v.mesh.as_ref()), &job.scene)
-            else {
-                bail!("--truth needs --scene");
-            };
-            let meta_path = scene.join("scene_meta.json");
-            let Some(meta) = meta else {
-                bail!(
-                    "{}: --truth needs the scene's ground truth (missing)",
-                    meta_path.display()
-                );
-            };
-            (
-                "truth".to_string(),
-                render_truth(
-                    scene,
-                    mesh,
-                    meta,
-                    &edits,
-                    &picked,
-                    &job.path,
-                    job.selection,
-                    &dir,
-                    job.quiet,
-                )?,
-            )
-        }
-    };
-    let wall = t_render.elapsed().as_secs_f64();
-    let scores: Vec<f64> = r.views.iter().filter_map(|v| v.psnr_db).collect();
-    let report = RenderReport {
-        source,
-        scene: job
-            .scene
-            .as_ref()
-            .map_or(String::new(), |s| s.display().to_string()),
-        split: group.to_string(),
-        relight: job.relight.is_some(),
-        inserted: inserted.len(),
-        cache: r.cache,
-        spp: job.path.spp,
-        max_depth: job.path.max_depth,
-        light_selection: job.selection,
-        emitter_triangles: r.emitter_triangles,
-        mean_psnr_db: mean(&scores),
-        min_psnr_db: scores.iter().cloned().reduce(f64::min),
-        views: r.views,
-        wall_s: wall,
-        paths_per_s: r.stats.paths as f64 / wall,
-        rays_per_s: (r.stats.rays + r.stats.shadow_rays) as f64 / wall,
-        stats: r.stats,
-        threads: rayon::current_num_threads(),
-    };
-    write_json(&job.out.join("render.json"), &report)?;
-    Ok(report)
+    let r = render_recovered(&rec, edits, picked, &job.path, &opts, dir, job.quiet)?;
+    Ok((m.manifest.name.clone(), r))
 }
 
 /// The trivial predictors of re-rendered views, scored as the renders are: for view synthesis

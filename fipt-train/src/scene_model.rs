@@ -145,7 +145,6 @@ pub fn utc_now() -> String {
 
 /// Writes the scene model into `dir` (replacing what is there) through a temporary sibling
 /// folder renamed at the end, so `dir` is complete or absent.
-#[allow(clippy::too_many_arguments)]
 pub fn save(
     dir: &Path,
     model: &FiptModel,
@@ -154,12 +153,9 @@ pub fn save(
     light_field: &LightField,
     info: &SaveInfo,
 ) -> Result<Manifest> {
-    let tmp = sibling(dir, "tmp");
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
-    let res = (|| -> Result<Manifest> {
+    crate::output::staged_dir(dir, |tmp| {
         model
-            .save(&tmp, TableFormat::F16)
+            .save(tmp, TableFormat::F16)
             .map_err(anyhow::Error::msg)?;
         mesh.save_obj(
             &tmp.join("mesh.obj"),
@@ -187,7 +183,7 @@ pub fn save(
             serde_json::to_string_pretty(info.run_metrics)?.as_bytes(),
         )?;
         let mut files = Vec::new();
-        let mut names: Vec<String> = std::fs::read_dir(&tmp)?
+        let mut names: Vec<String> = std::fs::read_dir(tmp)?
             .filter_map(|e| e.ok())
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .collect();
@@ -228,55 +224,12 @@ pub fn save(
             serde_json::to_string_pretty(&manifest)?.as_bytes(),
         )?;
         Ok(manifest)
-    })();
-    match res {
-        Ok(m) => {
-            replace_dir(&tmp, dir)?;
-            Ok(m)
-        }
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&tmp);
-            Err(e)
-        }
-    }
-}
-
-/// `dir` with `.name.<tag>-<pid>.tmp` as its last component (same parent, so renames stay on
-/// one file system; the `.tmp` ending marks it as a temporary a later run may remove).
-pub(crate) fn sibling(dir: &Path, tag: &str) -> PathBuf {
-    let name = dir
-        .file_name()
-        .map_or("folder".into(), |n| n.to_string_lossy().into_owned());
-    dir.with_file_name(format!(".{name}.{tag}-{}.tmp", std::process::id()))
-}
-
-/// Moves the complete folder `from` to `to`, replacing `to`: the old folder is first renamed
-/// aside, so `to` is the old complete folder, then absent for an instant, then the new one; a
-/// run killed in that instant leaves the old copy aside, which the next `run` puts back
-/// (`pipeline::checkpoint::remove_stale_tmp`).
-pub fn replace_dir(from: &Path, to: &Path) -> Result<()> {
-    if let Some(p) = to.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(p).with_context(|| format!("{}: cannot create", p.display()))?;
-    }
-    let old = sibling(to, "old");
-    let had_old = to.exists();
-    if had_old {
-        let _ = std::fs::remove_dir_all(&old);
-        std::fs::rename(to, &old).with_context(|| format!("{}: cannot replace", to.display()))?;
-    }
-    std::fs::rename(from, to).with_context(|| format!("{}: cannot write", to.display()))?;
-    if had_old {
-        let _ = std::fs::remove_dir_all(&old);
-    }
-    Ok(())
+    })
 }
 
 /// Copies a model folder (only the files its manifest lists) to `to`, atomically.
 pub fn copy_dir(from: &Path, manifest: &Manifest, to: &Path) -> Result<()> {
-    let tmp = sibling(to, "tmp");
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
-    let res = (|| -> Result<()> {
+    crate::output::staged_dir(to, |tmp| {
         for f in &manifest.files {
             std::fs::copy(from.join(&f.name), tmp.join(&f.name))
                 .with_context(|| format!("{}: cannot copy", from.join(&f.name).display()))?;
@@ -284,14 +237,7 @@ pub fn copy_dir(from: &Path, manifest: &Manifest, to: &Path) -> Result<()> {
         std::fs::copy(from.join(MANIFEST), tmp.join(MANIFEST))
             .with_context(|| format!("{}: cannot copy", from.join(MANIFEST).display()))?;
         Ok(())
-    })();
-    match res {
-        Ok(()) => replace_dir(&tmp, to),
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&tmp);
-            Err(e)
-        }
-    }
+    })
 }
 
 /// Reads and checks `DIR/manifest.json` alone (format, version); no file is opened.

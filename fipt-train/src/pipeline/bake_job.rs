@@ -6,8 +6,8 @@
 use super::bake;
 use crate::config::Config;
 use crate::output::{write_json, write_png};
-use crate::report::{BakeReport, GtRenderSummary, LightFieldReport};
-use crate::{cache, metrics};
+use crate::pipeline::report::{BakeReport, GtRenderSummary, LightFieldReport};
+use crate::{cache, image_metrics};
 use anyhow::Result;
 use fipt_bake::Accel;
 use fipt_core::scene::{Dataset, LoadOptions};
@@ -19,7 +19,7 @@ use std::time::Instant;
 pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<BakeReport> {
     let t0 = Instant::now();
     let opts = LoadOptions {
-        maps: metrics::GT_RENDER_MAPS.to_vec(),
+        maps: image_metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
     };
     let ds = Dataset::load(scene, &opts)?;
@@ -46,16 +46,16 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
             1.0,
         )?;
     }
-    let scores: Vec<Option<metrics::GtRenderPsnr>> = ds
+    let scores: Vec<Option<image_metrics::GtRenderPsnr>> = ds
         .train
         .views
         .iter()
         .zip(&baked.shadings)
-        .map(|(v, s)| metrics::gt_render_psnr(v, s))
+        .map(|(v, s)| image_metrics::gt_render_psnr(v, s))
         .collect();
     let gt = if scores.iter().all(|s| s.is_some()) {
-        let s: Vec<metrics::GtRenderPsnr> = scores.into_iter().flatten().collect();
-        let mean = |f: &dyn Fn(&metrics::GtRenderPsnr) -> Option<f64>| {
+        let s: Vec<image_metrics::GtRenderPsnr> = scores.into_iter().flatten().collect();
+        let mean = |f: &dyn Fn(&image_metrics::GtRenderPsnr) -> Option<f64>| {
             let v: Vec<f64> = s.iter().filter_map(f).collect();
             (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
         };
@@ -64,11 +64,13 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
             .unwrap_or(0);
         // The worst view's error image: |Γ(pred) − Γ(photo)| × 4.
         let view = &ds.train.views[worst];
-        if let Some(pred) = metrics::gt_render(view, &baked.shadings[worst]) {
+        if let Some(pred) = image_metrics::gt_render(view, &baked.shadings[worst]) {
             let err: Vec<f32> = pred
                 .iter()
                 .zip(&view.image.data)
-                .map(|(a, b)| ((metrics::gamma(*a) - metrics::gamma(*b)).abs() * 4.0).powf(2.2))
+                .map(|(a, b)| {
+                    ((image_metrics::gamma(*a) - image_metrics::gamma(*b)).abs() * 4.0).powf(2.2)
+                })
                 .collect();
             write_png(
                 &out.join(format!("bake_error_view{worst:03}.png")),

@@ -400,7 +400,7 @@ fn describe(dir: &Path) -> Option<String> {
 /// Renames `dir` to a temporary name, then removes it: a kill in between never leaves a
 /// half-deleted folder under its own name.
 fn remove_dir_aside(dir: &Path) {
-    let aside = crate::scene_model::sibling(dir, "gone");
+    let aside = crate::output::sibling(dir, "gone");
     if std::fs::rename(dir, &aside).is_ok() {
         let _ = std::fs::remove_dir_all(aside);
     }
@@ -485,6 +485,104 @@ fn clean(dir: &Path, recurse: bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pipeline::fit::{FitRun, fit_resumable};
+    use crate::pipeline::test_data::{toy_fit, toy_store};
+    use fipt_core::model::step::SegMode;
+    use fipt_core::scene::SceneBox;
+
+    /// A fit stopped after some steps, saved (`Checkpoints::save`), restored and continued
+    /// ends bit-identical to the uninterrupted fit: the same table, networks and loss log; a
+    /// sampler state of another store is refused with the file named.
+    #[test]
+    fn interrupted_fit_continues_exactly() {
+        interrupted_fit(false);
+    }
+
+    /// The same on the device path: pixels in a `DeviceStore`, losses read in blocks (settled
+    /// at each epoch's end and before the save), the table and its Adam state on the device.
+    #[test]
+    fn interrupted_device_grid_fit_continues_exactly() {
+        interrupted_fit(true);
+    }
+
+    fn interrupted_fit(device_grid: bool) {
+        let build = toy_store;
+        // The device fit reads its losses every `LOSS_READ_EVERY` steps and at epoch ends: with
+        // 32 steps per epoch and 60 steps both kinds of read happen (25, 32, 57, 60).
+        let (n, steps) = if device_grid { (2000, 60) } else { (600, 25) };
+        let st = build(n);
+        let (cfg, mut schedule) = toy_fit();
+        schedule.min_steps = steps;
+        let cfg = cfg.with_device_grid(device_grid);
+        let device = burn::tensor::Device::flex();
+        let scene_box = SceneBox { min: 0.0, max: 1.0 };
+        let run = FitRun {
+            mode: SegMode::Part,
+            schedule: &schedule,
+            seed: 3,
+            show_progress: false,
+        };
+        let fresh = || Trainer::new(cfg.clone(), scene_box, &device, 3);
+        let (whole, pw) = fit_resumable(fresh(), &st, &run, None, &mut |_, _| Ok(())).unwrap();
+        assert_eq!(whole.device_resident(), device_grid);
+        assert_eq!(pw.log.step_total.len(), steps);
+        assert_eq!(pw.log.epochs.len(), steps.div_ceil(n.div_ceil(64)));
+        assert!(pw.log.step_total.iter().all(|l| l.is_finite() && *l > 0.0));
+
+        let dir = std::env::temp_dir().join(format!(
+            "fipt-fit-resume-{device_grid}-{}",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        let ck = Checkpoints {
+            dir: dir.clone(),
+            every: 0,
+        };
+        let e = fit_resumable(fresh(), &st, &run, None, &mut |tr, p| {
+            if p.step == 11 {
+                ck.save(0, tr, p)?;
+                anyhow::bail!("stop");
+            }
+            Ok(())
+        });
+        assert!(e.is_err());
+        let of = |store| FitOf {
+            cfg: &cfg,
+            device: &device,
+            seed: 3,
+            store,
+            run: &run,
+        };
+        let c = ck.restore(0, &of(&st)).unwrap().expect("a saved state");
+        assert_eq!(c.progress.step, 11);
+        let (resumed, pr) =
+            fit_resumable(c.trainer, &st, &run, Some(c.progress), &mut |_, _| Ok(())).unwrap();
+        assert_eq!(pw.log.step_total, pr.log.step_total);
+        let epochs = |p: &FitProgress| {
+            p.log
+                .epochs
+                .iter()
+                .map(|e| [e.total, e.color, e.emission, e.diffuse, e.seg])
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(epochs(&pw), epochs(&pr));
+        assert_eq!(whole.steps, resumed.steps);
+        assert_eq!(whole.model.grid.table, resumed.model.grid.table);
+        assert_eq!(whole.model.net_params(), resumed.model.net_params());
+
+        // Another store (one pixel fewer) does not take this sampler state.
+        let small = build(n - 1);
+        let e = ck
+            .restore(0, &of(&small))
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(
+            e.contains("sampler.bin") || e.contains("progress.json"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// A `save_again` killed between setting the old folder aside and putting the new one in
     /// place leaves `stepN.prev` alone: the next run puts it back. Killed after, the new folder
@@ -603,7 +701,7 @@ mod tests {
         /// file is refused with its name in the message.
         #[test]
         fn damaged_state_is_refused_by_name(file in 0..STATE_FILES.len(), d in damage()) {
-            use crate::pipeline::fit::tests::{toy_fit, toy_store};
+            use crate::pipeline::test_data::{toy_fit, toy_store};
             use crate::pipeline::fit::{FitRun, fit_resumable};
             use fipt_core::model::step::SegMode;
             static SAVED: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();

@@ -9,6 +9,7 @@
 //! Owns: metrics and the per-part table. Must not touch: prediction.
 
 use super::predict::ViewMaps;
+use crate::image_metrics::psnr;
 use fipt_bake::ViewHits;
 use fipt_core::scene::{MapKind, View, meta::SceneMeta};
 use serde::{Deserialize, Serialize};
@@ -31,18 +32,6 @@ pub struct Metrics {
     pub emission_iou: Option<f64>,
     pub emission_log_l2: Option<f64>,
     pub per_view: Vec<ViewScore>,
-}
-
-/// PSNR of a summed squared error over `n` values, capped at 100 dB; NaN when the error is not
-/// finite (a NaN prediction must not score as perfect: `f64::max` would drop it).
-fn psnr(se: f64, n: usize) -> Option<f64> {
-    (n > 0).then(|| {
-        if se.is_finite() {
-            -10.0 * (se / n as f64).max(1e-10).log10()
-        } else {
-            f64::NAN
-        }
-    })
 }
 
 /// Scores one view; figures whose GT map is missing are None.
@@ -410,20 +399,6 @@ mod tests {
     fn close(a: Option<f64>, b: f64, tol: f64, what: &str) {
         let a = a.unwrap_or_else(|| panic!("{what} is None"));
         assert!((a - b).abs() <= tol, "{what}: {a} vs expected {b}");
-    }
-
-    #[test]
-    fn psnr_of_mse_with_floor_and_empty_mask() {
-        close(psnr(0.03, 3), 20.0, 1e-9, "mse 0.01");
-        close(psnr(4.0, 4), 0.0, 1e-9, "mse 1");
-        close(psnr(0.0, 5), 100.0, 1e-9, "mse 0 hits the 1e-10 floor");
-        assert!(
-            psnr(f64::NAN, 3).unwrap().is_nan(),
-            "NaN must not score 100 dB"
-        );
-        assert!(psnr(f64::INFINITY, 3).unwrap().is_nan());
-        close(psnr(1e-13, 1), 100.0, 1e-9, "mse below the floor");
-        assert_eq!(psnr(0.0, 0), None);
     }
 
     /// Every clamp, mask and exclusion of `score_view`, with the squared errors summed by hand.

@@ -5,12 +5,13 @@
 //! Owns: the schedule (steps, learning rate, which pixels a batch holds), the loss log,
 //! progress. Must not touch: the model maths, the pixel store.
 
+use super::batches::{Sampler, Shape, step_entries};
 use super::pixels::PixelStore;
+use crate::config::TrainSection;
 use crate::progress::progress_bar;
 use fipt_core::brdf::{factorised_render, reflectances};
-use fipt_core::model::step::{DeviceStore, SegMode, StepInput, StepLoss};
+use fipt_core::model::step::{DeviceStore, SegMode, StepLoss};
 use fipt_core::model::{LossParts, TrainConfig, Trainer};
-use fipt_core::rng::Rng;
 use fipt_core::scene::SceneBox;
 use fipt_core::shading::ShadingLayout;
 use std::path::Path;
@@ -40,199 +41,14 @@ pub struct TrainLog {
     pub hop: Option<super::hop::HopReport>,
 }
 
-/// How long a fit runs and what each step sees.
-///
-/// The reference trains `epochs` epochs of ceil(N / batch) steps at a constant learning rate
-/// (its milestone never fires), which is ~10k steps on its 41 M-pixel kitchen but ~226 on a
-/// 0.9 M-pixel scene. `min_steps` puts a floor under the step count so that the schedule
-/// transfers between scenes of different pixel counts, `lr_end` decays the learning rate
-/// exponentially to `lr_end × lr` at the last step, and `balance` draws that share of every
-/// batch uniformly over segments (then uniformly within the segment), so that small parts are
-/// seen. `Schedule::reference` reproduces the reference.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Schedule {
-    pub epochs: usize,
-    pub batch: usize,
-    pub min_steps: usize,
-    /// Learning rate at the first step.
-    pub lr: f64,
-    /// Learning rate at the last step as a fraction of `lr` (1: constant).
-    pub lr_end: f64,
-    /// Share of each batch drawn segment-balanced (0: all uniform over pixels).
-    pub balance: f32,
-    /// λ_d (Eq. 17) at the last step as a fraction of its configured value, reached linearly
-    /// (1: constant, the reference).
-    pub lambda_d_end: f32,
-    /// Share of the steps over which λ_d first rises linearly from 0 (0: none, the reference).
-    pub lambda_d_warmup: f32,
-}
-
-impl Schedule {
-    /// The reference's schedule: `epochs` epochs at constant `lr`, uniform batches.
-    pub fn reference(epochs: usize, batch: usize, lr: f64) -> Self {
-        Self {
-            epochs,
-            batch,
-            min_steps: 0,
-            lr,
-            lr_end: 1.0,
-            balance: 0.0,
-            lambda_d_end: 1.0,
-            lambda_d_warmup: 0.0,
-        }
-    }
-
-    /// The factor on λ_d at step `s` of `total`.
-    pub fn lambda_d_at(&self, s: usize, total: usize) -> f32 {
-        let f = if total > 1 {
-            s as f32 / (total - 1) as f32
-        } else {
-            0.0
-        };
-        let ramp = if self.lambda_d_warmup > 0.0 {
-            (f / self.lambda_d_warmup).min(1.0)
-        } else {
-            1.0
-        };
-        ramp * (1.0 + (self.lambda_d_end - 1.0) * f)
-    }
-
-    /// Steps of a fit over `n` pixels.
-    pub fn steps(&self, n: usize) -> usize {
-        (self.epochs * n.div_ceil(self.batch.max(1))).max(self.min_steps)
-    }
-
-    /// The learning rate of step `s` of `total`.
-    pub fn lr_at(&self, s: usize, total: usize) -> f64 {
-        let f = if total > 1 {
-            s as f64 / (total - 1) as f64
-        } else {
-            0.0
-        };
-        self.lr * self.lr_end.powf(f)
-    }
-}
-
 /// What one fit runs: the model and optimiser config, the scene box, the segmentation loss,
 /// the schedule and the seed.
 pub struct FitPlan {
     pub cfg: TrainConfig,
     pub scene_box: SceneBox,
     pub mode: SegMode,
-    pub schedule: Schedule,
+    pub schedule: TrainSection,
     pub seed: u64,
-}
-
-/// Draws batch indices: shuffled epochs over all pixels, and the balanced share by segment.
-#[derive(Clone, Debug)]
-pub(super) struct Sampler {
-    rng: Rng,
-    /// The current permutation of all pixels (each epoch shuffles the last one further).
-    order: Vec<u32>,
-    /// Position in `order`; past its end, the next draw shuffles first.
-    next: usize,
-    /// Pixel indices of each segment (derived from the store, not saved).
-    segments: Vec<Vec<u32>>,
-}
-
-const SAMPLER_MAGIC: &[u8; 8] = b"FIPTSMP1";
-
-impl Sampler {
-    fn new(store: &PixelStore, seed: u64, balanced: bool) -> Self {
-        Self {
-            rng: Rng::new(seed, 0x7a1),
-            order: (0..store.len() as u32).collect(),
-            next: usize::MAX,
-            segments: Self::segments_of(store, balanced),
-        }
-    }
-
-    /// Pixel indices of each segment, in segment-id order (none unless `balanced`).
-    pub(super) fn segments_of(store: &PixelStore, balanced: bool) -> Vec<Vec<u32>> {
-        if !balanced {
-            return Vec::new();
-        }
-        let mut by: std::collections::BTreeMap<i32, Vec<u32>> = Default::default();
-        for (i, &s) in store.pixels.seg.iter().enumerate() {
-            by.entry(s).or_default().push(i as u32);
-        }
-        by.into_values().collect()
-    }
-
-    /// `uniform` pixels in epoch order (a new permutation whenever one is used up), then
-    /// `balanced` pixels drawn segment-first.
-    fn draw(&mut self, uniform: usize, balanced: usize, out: &mut Vec<u32>) {
-        out.clear();
-        while out.len() < uniform {
-            if self.next >= self.order.len() {
-                self.rng.shuffle(&mut self.order);
-                self.next = 0;
-            }
-            let take = (uniform - out.len()).min(self.order.len() - self.next);
-            out.extend_from_slice(&self.order[self.next..self.next + take]);
-            self.next += take;
-        }
-        if !self.segments.is_empty() {
-            for _ in 0..balanced {
-                let s = &self.segments[self.rng.below(self.segments.len() as u64) as usize];
-                out.push(s[self.rng.below(s.len() as u64) as usize]);
-            }
-        }
-    }
-
-    /// The saved state: magic, RNG state, position, order length, the order (little-endian).
-    fn to_bytes(&self) -> Vec<u8> {
-        let mut b = Vec::with_capacity(32 + 4 * self.order.len());
-        b.extend_from_slice(SAMPLER_MAGIC);
-        b.extend_from_slice(&self.rng.state().to_le_bytes());
-        b.extend_from_slice(&(self.next as u64).to_le_bytes());
-        b.extend_from_slice(&(self.order.len() as u64).to_le_bytes());
-        for i in &self.order {
-            b.extend_from_slice(&i.to_le_bytes());
-        }
-        b
-    }
-
-    /// The sampler `to_bytes` saved, for `store`; the reason when the bytes are not one (wrong
-    /// magic, size, length, or an order that is not a permutation).
-    fn from_bytes(b: &[u8], store: &PixelStore, balanced: bool) -> Result<Self, String> {
-        if b.len() < 32 || &b[..8] != SAMPLER_MAGIC {
-            return Err("not a fipt sampler state".into());
-        }
-        let word = |i: usize| u64::from_le_bytes(b[8 + 8 * i..16 + 8 * i].try_into().unwrap());
-        let (state, next, n) = (word(0), word(1), word(2));
-        if n != store.len() as u64 || b.len() as u64 != 32 + 4 * n {
-            return Err(format!(
-                "holds {n} pixels in {} bytes, the fit has {}",
-                b.len(),
-                store.len()
-            ));
-        }
-        let order: Vec<u32> = b[32..]
-            .chunks_exact(4)
-            .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
-            .collect();
-        let mut seen = vec![false; order.len()];
-        for &i in &order {
-            match seen.get_mut(i as usize) {
-                Some(s) if !*s => *s = true,
-                _ => return Err("the pixel order is not a permutation".into()),
-            }
-        }
-        let next = if next == u64::MAX {
-            usize::MAX
-        } else if next <= n {
-            next as usize
-        } else {
-            return Err(format!("position {next} past the {n} pixels"));
-        };
-        Ok(Self {
-            rng: Rng::from_state(state),
-            order,
-            next,
-            segments: Self::segments_of(store, balanced),
-        })
-    }
 }
 
 /// Everything of a running fit besides the trainer: the step, the loss log so far and the
@@ -344,7 +160,7 @@ impl FitProgress {
         dir: &Path,
         store: &PixelStore,
         mode: SegMode,
-        schedule: &Schedule,
+        schedule: &TrainSection,
     ) -> anyhow::Result<Self> {
         let path = dir.join(PROGRESS_FILE);
         let p = read_progress(dir)?;
@@ -397,29 +213,6 @@ fn read_progress(dir: &Path) -> anyhow::Result<ProgressFile> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// The batch sizes and step counts of a fit over a store (also the basin hop's batches).
-pub(super) struct Shape {
-    pub(super) batch: usize,
-    pub(super) balanced: usize,
-    pub(super) steps: usize,
-    steps_per_epoch: usize,
-}
-
-impl Shape {
-    pub(super) fn of(store: &PixelStore, mode: SegMode, schedule: &Schedule) -> Self {
-        let batch = schedule.batch.min(store.len()).max(1);
-        let balanced = ((schedule.balance.clamp(0.0, 1.0) * batch as f32).round() as usize)
-            .min(batch)
-            * usize::from(mode != SegMode::None);
-        Self {
-            batch,
-            balanced,
-            steps: schedule.steps(store.len()),
-            steps_per_epoch: store.len().div_ceil(batch).max(1),
-        }
-    }
-}
-
 /// Runs the schedule from a fresh model.
 pub fn fit(
     store: &PixelStore,
@@ -443,7 +236,7 @@ pub fn fit_more(
     tr: Trainer,
     store: &PixelStore,
     mode: SegMode,
-    schedule: &Schedule,
+    schedule: &TrainSection,
     seed: u64,
     show_progress: bool,
 ) -> (Trainer, TrainLog) {
@@ -462,7 +255,7 @@ pub fn fit_more(
 /// How a fit runs besides its trainer and pixels.
 pub struct FitRun<'a> {
     pub mode: SegMode,
-    pub schedule: &'a Schedule,
+    pub schedule: &'a TrainSection,
     pub seed: u64,
     pub show_progress: bool,
 }
@@ -531,238 +324,3 @@ pub fn fit_resumable(
 
 /// Steps between two reads of the device path's losses.
 pub const LOSS_READ_EVERY: usize = 25;
-
-/// One step on the entries `idx` of `store`: by index from its device copy `ds` when the grid
-/// lives on the device (the loss left there; the semantic loss also gets the host batch), else
-/// as a host batch.
-pub fn step_entries(
-    tr: &mut Trainer,
-    ds: Option<&DeviceStore>,
-    store: &PixelStore,
-    idx: &[u32],
-    mode: SegMode,
-) -> StepLoss {
-    match ds {
-        Some(ds) => {
-            // The semantic loss and a σ pull read the batch's labels on the host.
-            let host = (mode == SegMode::Semantic || tr.pull.is_some()).then(|| store.batch(idx));
-            let input = StepInput::Device {
-                store: ds,
-                idx,
-                host: host.as_ref(),
-            };
-            tr.step_on(input, mode)
-        }
-        None => StepLoss::Ready(tr.step(&store.batch(idx), mode)),
-    }
-}
-
-#[cfg(test)]
-pub(crate) mod tests {
-    use super::*;
-    use fipt_core::model::Batch;
-
-    pub(crate) fn store(seg: &[i32]) -> PixelStore {
-        let n = seg.len();
-        PixelStore {
-            pixels: Batch {
-                x_unit: vec![[0.5; 3]; n],
-                x_world: vec![[0.0; 3]; n],
-                shadings: vec![0.0; n * ShadingLayout::DIM],
-                gt: vec![0.0; 3 * n],
-                seg: seg.to_vec(),
-            },
-            origin: (0..n as u32).map(|i| (0, i)).collect(),
-        }
-    }
-
-    /// `n` pixels of five segments with varied positions, shadings and colours.
-    pub(crate) fn toy_store(n: usize) -> PixelStore {
-        let seg: Vec<i32> = (0..n).map(|i| (i % 5) as i32).collect();
-        let mut st = store(&seg);
-        for i in 0..n {
-            let t = i as f32 / n as f32;
-            st.pixels.x_unit[i] = [t, (3.0 * t).fract(), (7.0 * t).fract()];
-            for c in 0..ShadingLayout::DIM {
-                st.pixels.shadings[i * ShadingLayout::DIM + c] =
-                    0.2 + 0.5 * ((i + c) % 7) as f32 / 7.0;
-            }
-            st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&[0.3 + 0.4 * t, 0.5, 0.2]);
-        }
-        st
-    }
-
-    /// A small model and a 25-step schedule.
-    pub(crate) fn toy_fit() -> (fipt_core::model::TrainConfig, Schedule) {
-        let mut train = crate::config::Config::default().train;
-        train.grid.log2_table = 8;
-        train.mlp_hidden = 16;
-        train.emission_width = 16;
-        train.emission_depth = 2;
-        let schedule = Schedule {
-            min_steps: 25,
-            balance: 0.25,
-            lr_end: 0.1,
-            lambda_d_end: 0.5,
-            ..Schedule::reference(1, 64, 1e-2)
-        };
-        (
-            train.model_config(3, fipt_core::model::BackendKind::Flex),
-            schedule,
-        )
-    }
-
-    /// A fit stopped after some steps, saved (`Checkpoints::save`), restored and continued
-    /// ends bit-identical to the uninterrupted fit: the same table, networks and loss log; a
-    /// sampler state of another store is refused with the file named.
-    #[test]
-    fn interrupted_fit_continues_exactly() {
-        interrupted_fit(false);
-    }
-
-    /// The same on the device path: pixels in a `DeviceStore`, losses read in blocks (settled
-    /// at each epoch's end and before the save), the table and its Adam state on the device.
-    #[test]
-    fn interrupted_device_grid_fit_continues_exactly() {
-        interrupted_fit(true);
-    }
-
-    fn interrupted_fit(device_grid: bool) {
-        use crate::pipeline::checkpoint::Checkpoints;
-        let build = toy_store;
-        // The device fit reads its losses every `LOSS_READ_EVERY` steps and at epoch ends: with
-        // 32 steps per epoch and 60 steps both kinds of read happen (25, 32, 57, 60).
-        let (n, steps) = if device_grid { (2000, 60) } else { (600, 25) };
-        let st = build(n);
-        let (cfg, mut schedule) = toy_fit();
-        schedule.min_steps = steps;
-        let cfg = cfg.with_device_grid(device_grid);
-        let device = burn::tensor::Device::flex();
-        let scene_box = SceneBox { min: 0.0, max: 1.0 };
-        let run = FitRun {
-            mode: SegMode::Part,
-            schedule: &schedule,
-            seed: 3,
-            show_progress: false,
-        };
-        let fresh = || Trainer::new(cfg.clone(), scene_box, &device, 3);
-        let (whole, pw) = fit_resumable(fresh(), &st, &run, None, &mut |_, _| Ok(())).unwrap();
-        assert_eq!(whole.device_resident(), device_grid);
-        assert_eq!(pw.log.step_total.len(), steps);
-        assert_eq!(pw.log.epochs.len(), steps.div_ceil(n.div_ceil(64)));
-        assert!(pw.log.step_total.iter().all(|l| l.is_finite() && *l > 0.0));
-
-        let dir = std::env::temp_dir().join(format!(
-            "fipt-fit-resume-{device_grid}-{}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        let ck = Checkpoints {
-            dir: dir.clone(),
-            every: 0,
-        };
-        let e = fit_resumable(fresh(), &st, &run, None, &mut |tr, p| {
-            if p.step == 11 {
-                ck.save(0, tr, p)?;
-                anyhow::bail!("stop");
-            }
-            Ok(())
-        });
-        assert!(e.is_err());
-        let of = |store| crate::pipeline::checkpoint::FitOf {
-            cfg: &cfg,
-            device: &device,
-            seed: 3,
-            store,
-            run: &run,
-        };
-        let c = ck.restore(0, &of(&st)).unwrap().expect("a saved state");
-        assert_eq!(c.progress.step, 11);
-        let (resumed, pr) =
-            fit_resumable(c.trainer, &st, &run, Some(c.progress), &mut |_, _| Ok(())).unwrap();
-        assert_eq!(pw.log.step_total, pr.log.step_total);
-        let epochs = |p: &FitProgress| {
-            p.log
-                .epochs
-                .iter()
-                .map(|e| [e.total, e.color, e.emission, e.diffuse, e.seg])
-                .collect::<Vec<_>>()
-        };
-        assert_eq!(epochs(&pw), epochs(&pr));
-        assert_eq!(whole.steps, resumed.steps);
-        assert_eq!(whole.model.grid.table, resumed.model.grid.table);
-        assert_eq!(whole.model.net_params(), resumed.model.net_params());
-
-        // Another store (one pixel fewer) does not take this sampler state.
-        let small = build(n - 1);
-        let e = ck
-            .restore(0, &of(&small))
-            .err()
-            .expect("refused")
-            .to_string();
-        assert!(
-            e.contains("sampler.bin") || e.contains("progress.json"),
-            "{e}"
-        );
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    /// The reference schedule: epochs × ceil(N/B) steps at a constant rate; the floor and the
-    /// decay as documented.
-    #[test]
-    fn schedule_steps_and_rates() {
-        let r = Schedule::reference(2, 8192, 1e-3);
-        assert_eq!(r.steps(921_600), 226);
-        assert_eq!(r.lr_at(0, 226), 1e-3);
-        assert_eq!(r.lr_at(225, 226), 1e-3);
-        let s = Schedule {
-            min_steps: 1000,
-            lr_end: 0.1,
-            ..r
-        };
-        assert_eq!(s.steps(921_600), 1000);
-        assert_eq!(s.steps(50_000_000), 2 * 6104);
-        assert!((s.lr_at(999, 1000) - 1e-4).abs() < 1e-12);
-        assert!((s.lr_at(0, 1000) - 1e-3).abs() < 1e-15);
-        let mid = s.lr_at(500, 1000) / 1e-3;
-        assert!((mid - 0.1f64.powf(500.0 / 999.0)).abs() < 1e-12);
-        // λ_d: 0 at the first step, linear to full at `lambda_d_warmup` of the steps, then the
-        // `lambda_d_end` line.
-        let w = Schedule {
-            lambda_d_warmup: 0.5,
-            lambda_d_end: 0.5,
-            ..r.clone()
-        };
-        assert_eq!(w.lambda_d_at(0, 101), 0.0);
-        assert!((w.lambda_d_at(25, 101) - 0.5 * (1.0 - 0.5 * 0.25)).abs() < 1e-6);
-        assert!((w.lambda_d_at(50, 101) - (1.0 - 0.5 * 0.5)).abs() < 1e-6);
-        assert!((w.lambda_d_at(100, 101) - 0.5).abs() < 1e-6);
-        assert_eq!(r.lambda_d_at(0, 101), 1.0);
-    }
-
-    /// Uniform draws cover every pixel once per epoch; balanced draws give a 1 %-segment the
-    /// same share as a 99 %-segment.
-    #[test]
-    fn sampler_epochs_and_balance() {
-        let seg: Vec<i32> = (0..1000).map(|i| if i < 10 { 7 } else { 3 }).collect();
-        let st = store(&seg);
-        let mut sa = Sampler::new(&st, 1, false);
-        let mut seen = vec![0u32; 1000];
-        let mut idx = Vec::new();
-        for _ in 0..10 {
-            sa.draw(100, 0, &mut idx);
-            for &i in &idx {
-                seen[i as usize] += 1;
-            }
-        }
-        assert!(seen.iter().all(|&c| c == 1));
-        let mut sb = Sampler::new(&st, 1, true);
-        let mut small = 0;
-        for _ in 0..100 {
-            sb.draw(0, 100, &mut idx);
-            small += idx.iter().filter(|&&i| i < 10).count();
-        }
-        // Expected 5000 of 10000; uniform sampling would give 100.
-        assert!((4700..5300).contains(&small), "{small}");
-    }
-}

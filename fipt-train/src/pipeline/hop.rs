@@ -12,7 +12,7 @@
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
 //! is chosen in the first steps of a fit. A part can then sit at σ ≈ 0.95 while its own data and
-//! prior favour σ ≈ 0.3 by 15 % (the README measures it); no amount of descent leaves such a
+//! prior favour a much lower σ (`docs/departures/hop.md`); no amount of descent leaves such a
 //! plateau, a hop to where the objective already says it should be does.
 //!
 //! The objective evaluated is that of the fit, Eq. 15 + 17: the tone-mapped MSE of the
@@ -27,9 +27,10 @@
 //! Owns: the sweep, the hop's two phases and its decision. Must not touch: the fit's schedule,
 //! the model maths.
 
-use super::fit::{Sampler, Schedule, Shape, step_entries};
+use super::batches::{Sampler, Shape, step_entries};
 use super::landscape::SWEEP;
 use super::pixels::PixelStore;
+use crate::config::{HopConfig, TrainSection};
 use crate::progress::progress_bar;
 use fipt_core::brdf::{factorised_render, reflectances};
 use fipt_core::model::loss::tonemap_host as tonemap;
@@ -39,38 +40,6 @@ use fipt_core::rng::Rng;
 use fipt_core::shading::ShadingLayout;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// The hop's keys (`train.hop`; null: no hop, the reference).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct HopConfig {
-    /// Relative drop of a segment's objective at the sweep's best σ that calls for a hop.
-    pub gain: f32,
-    /// Smallest |best σ − mean fitted σ| that calls for a hop.
-    pub min_move: f32,
-    /// Steps of each phase (pull, then release) as a share of the fit's steps.
-    pub steps: f32,
-    /// Weight of the pull (`loss::sigma_pull_loss`).
-    pub pull: f32,
-    /// Pixels per segment in the sweep and the decision.
-    pub pixels: usize,
-    /// Share of the fit's final λ_d that the check and the decision hold (1: the fit's own
-    /// objective, Eq. 15 + 17; 0: the data term alone, Eq. 15).
-    pub prior: f32,
-}
-
-impl Default for HopConfig {
-    fn default() -> Self {
-        Self {
-            gain: 0.05,
-            min_move: 0.25,
-            steps: 0.15,
-            pull: 1e-2,
-            pixels: 4096,
-            prior: 0.0,
-        }
-    }
-}
 
 /// A segment the sweep sent hopping.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -300,7 +269,7 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
 pub struct HopPlan<'a> {
     pub cfg: &'a HopConfig,
     pub mode: SegMode,
-    pub schedule: &'a Schedule,
+    pub schedule: &'a TrainSection,
     /// The fit's λ_d at its last step (the objective holds `prior` × this).
     pub lambda_d: f32,
     pub seed: u64,
@@ -418,7 +387,7 @@ fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::fit::tests::{store, toy_fit, toy_store};
+    use crate::pipeline::test_data::{store, toy_fit, toy_store};
     use fipt_core::scene::SceneBox;
 
     fn toy_trainer(cfg: fipt_core::model::TrainConfig) -> Trainer {

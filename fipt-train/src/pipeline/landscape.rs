@@ -187,3 +187,4 @@ pub fn landscape(
     }
     rows
 }
+

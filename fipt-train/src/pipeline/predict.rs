@@ -4,6 +4,7 @@
 //!
 //! Owns: map prediction and map files. Must not touch: scoring (`evaluate`).
 
+use crate::config::Config;
 use anyhow::Result;
 use fipt_bake::ViewHits;
 use fipt_core::brdf::{Frame, reflectances, sample_specular};
@@ -106,6 +107,41 @@ pub fn predict_view(
         m.metallic[p] = mat.metallic[i];
     }
     m
+}
+
+/// The maps of every view of `hits`, in view order, as `run` predicts them (the config's
+/// albedo samples, each view's seed from `Seeds::view_maps`), each handed to `each` with its
+/// view index.
+pub fn for_each_view(
+    model: &FiptModel,
+    hits: &[ViewHits],
+    emission: &[Vec3],
+    cfg: &Config,
+    mut each: impl FnMut(usize, ViewMaps) -> Result<()>,
+) -> Result<()> {
+    for (k, h) in hits.iter().enumerate() {
+        let seed = cfg.seeds().view_maps(k);
+        each(
+            k,
+            predict_view(model, h, emission, cfg.maps.albedo_samples, seed),
+        )?;
+    }
+    Ok(())
+}
+
+/// `for_each_view`'s maps, collected.
+pub fn predict_views(
+    model: &FiptModel,
+    hits: &[ViewHits],
+    emission: &[Vec3],
+    cfg: &Config,
+) -> Vec<ViewMaps> {
+    let mut maps = Vec::with_capacity(hits.len());
+    let _ = for_each_view(model, hits, emission, cfg, |_, m| {
+        maps.push(m);
+        Ok(())
+    });
+    maps
 }
 
 pub(crate) fn rgb_of_scalar(v: &[f32]) -> Vec<f32> {

@@ -8,6 +8,7 @@
 //! Must not touch: the estimators.
 
 use super::bake::Baked;
+use super::context::RunContext;
 use super::pixels::PixelStore;
 use crate::learned::LearnedMaterials;
 use crate::progress::progress_bar;
@@ -18,7 +19,7 @@ use fipt_bake::integrators::refine::{RefineConfig, refine_view};
 use fipt_bake::materials::{MaterialSource, SurfaceMaterial, VoxelMaterials};
 use fipt_core::io::Fnv64;
 use fipt_core::model::FiptModel;
-use fipt_core::scene::{Mesh, Split};
+use fipt_core::scene::Dataset;
 use glam::Vec3;
 
 /// The refined shadings of one round.
@@ -57,33 +58,34 @@ pub fn refine_key(
 /// Bumped whenever the refinement's maths changes.
 const REFINE_CODE_VERSION: u32 = 1;
 
-/// Which views to refine and how the learned field is queried.
-pub struct RefineScope<'a> {
+/// What a refinement path-traces: the scene, its bake, the estimators' config and which
+/// training views.
+pub struct RefineJob<'a> {
+    pub ds: &'a Dataset,
+    pub accel: &'a Accel,
+    pub baked: &'a Baked,
+    pub cfg: &'a RefineConfig,
     /// Train view indices (all of them in `run`).
     pub views: &'a [usize],
-    /// Query the field through the voxel cache (`false`: the exact field at every vertex).
+    /// Query the learned field through the voxel cache (`false`: the exact field at every
+    /// vertex).
     pub material_cache: bool,
+    pub show_progress: bool,
 }
 
-/// Path-traces the shadings of the scope's training views with `model` and `emitters`.
-#[allow(clippy::too_many_arguments)]
+/// Path-traces the shadings of the job's training views with `model` and `emitters`.
 pub fn refine(
-    mesh: &Mesh,
-    accel: &Accel,
-    train: &Split,
-    baked: &Baked,
+    job: &RefineJob,
     store: &PixelStore,
     model: &FiptModel,
     emitters: &[Emitter],
-    cfg: &RefineConfig,
-    scope: &RefineScope,
-    show_progress: bool,
 ) -> anyhow::Result<Refined> {
+    let mesh = &job.ds.mesh;
     let emitter_tris: Vec<u32> = emitters.iter().map(|e| e.triangle).collect();
     let learned = LearnedMaterials::new(model.clone(), mesh.num_triangles(), &emitter_tris);
     // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
     // always go to the learned source (black).
-    let voxels = scope.material_cache.then(|| {
+    let voxels = job.material_cache.then(|| {
         let mv = model.material(&store.pixels.x_unit);
         let mats: Vec<SurfaceMaterial> = (0..store.len())
             .map(|i| SurfaceMaterial {
@@ -98,7 +100,7 @@ pub fn refine(
             .iter()
             .map(|p| Vec3::from(*p))
             .collect();
-        let lf = &baked.light_field;
+        let lf = &job.baked.light_field;
         VoxelMaterials::build(
             lf.scene_box,
             lf.res,
@@ -115,7 +117,7 @@ pub fn refine(
     let lights = EmitterSet::with_sides(
         mesh,
         emitters.iter().map(|e| {
-            let sides = if cfg.observed_sides {
+            let sides = if job.cfg.observed_sides {
                 e.observed_sides()
             } else {
                 EmitterSides::Both
@@ -124,16 +126,7 @@ pub fn refine(
         }),
         LightSelection::Uniform,
     );
-    let (shadings, stats) = refine_with(
-        accel,
-        train,
-        baked,
-        source,
-        &lights,
-        cfg,
-        scope.views,
-        show_progress,
-    )?;
+    let (shadings, stats) = refine_with(job, source, &lights)?;
     Ok(Refined {
         shadings,
         stats,
@@ -141,22 +134,17 @@ pub fn refine(
     })
 }
 
-/// Path-traces the shadings of the given training views with any material source and
+/// Path-traces the shadings of the job's training views with any material source and
 /// emitters (the learned model's in `refine`, the ground truth's for the oracle).
-#[allow(clippy::too_many_arguments)]
 pub fn refine_with(
-    accel: &Accel,
-    train: &Split,
-    baked: &Baked,
+    job: &RefineJob,
     materials: &dyn MaterialSource,
     lights: &EmitterSet,
-    cfg: &RefineConfig,
-    views: &[usize],
-    show_progress: bool,
 ) -> anyhow::Result<(Vec<Vec<f32>>, PathStats)> {
+    let (cfg, baked) = (job.cfg, job.baked);
     let scene = PathScene {
         secondary_materials: None,
-        accel,
+        accel: job.accel,
         materials,
         emitters: lights,
         cache: Some(RadianceCache {
@@ -164,10 +152,10 @@ pub fn refine_with(
             min_roughness: cfg.cache_roughness,
         }),
     };
-    let pb = progress_bar(views.len() as u64, "refine", show_progress);
+    let pb = progress_bar(job.views.len() as u64, "refine", job.show_progress);
     let mut stats = PathStats::default();
-    let mut shadings = Vec::with_capacity(views.len());
-    for &k in views {
+    let mut shadings = Vec::with_capacity(job.views.len());
+    for &k in job.views {
         // Ctrl-C stops between views (`interrupt`).
         if crate::interrupt::requested() {
             pb.finish_and_clear();
@@ -176,7 +164,7 @@ pub fn refine_with(
             )
             .into());
         }
-        let (v, h) = (&train.views[k], &baked.hits[k]);
+        let (v, h) = (&job.ds.train.views[k], &baked.hits[k]);
         let (s, st) = refine_view(&scene, h, v.camera.fx as f32, cfg, k as u64);
         stats.add(&st);
         pb.inc(1);
@@ -186,16 +174,11 @@ pub fn refine_with(
     Ok((shadings, stats))
 }
 
-/// Oracle shadings: path-traced with the scene's true materials and emitters (one-sided, as
-/// Mitsuba rendered them), for the ceiling of the factorised model. Needs `scene_meta.json`.
-pub fn oracle(
-    scene_dir: &std::path::Path,
-    ds: &fipt_core::scene::Dataset,
-    accel: &Accel,
-    baked: &Baked,
-    cfg: &RefineConfig,
-    show_progress: bool,
-) -> anyhow::Result<Vec<Vec<f32>>> {
+/// Oracle shadings of the job's views: path-traced with the scene's true materials and emitters
+/// (one-sided, as Mitsuba rendered them), for the ceiling of the factorised model. Needs
+/// `scene_meta.json`.
+pub fn oracle(scene_dir: &std::path::Path, job: &RefineJob) -> anyhow::Result<Vec<Vec<f32>>> {
+    let ds = job.ds;
     let meta_path = scene_dir.join("scene_meta.json");
     let Some(meta) = ds.meta.as_ref() else {
         anyhow::bail!(
@@ -215,16 +198,36 @@ pub fn oracle(
         false,
         LightSelection::Uniform,
     );
+    Ok(refine_with(job, &materials, &lights)?.0)
+}
+
+/// The oracle shadings of every training view of a scene with ground truth, cached in
+/// `out/cache/oracle.bin` under the bake's key and the oracle's path config.
+pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<f32>>> {
+    let (ds, cfg) = (&ctx.ds, ctx.cfg);
+    let rcfg = cfg.oracle_paths();
+    let mut h = Fnv64::default();
+    h.bytes(&ctx.bake_key.to_le_bytes());
+    h.bytes(b"oracle");
+    h.bytes(serde_json::to_string(&rcfg)?.as_bytes());
+    h.bytes(&rcfg.seed.to_le_bytes());
+    let key = h.finish();
+    let path = ctx.out.join("cache").join("oracle.bin");
+    let (w, hh) = (ds.train.width, ds.train.height);
+    if let Some(s) = crate::cache::load(&path, key, ds.train.views.len(), w, hh)? {
+        return Ok(s);
+    }
     let all: Vec<usize> = (0..ds.train.views.len()).collect();
-    Ok(refine_with(
-        accel,
-        &ds.train,
+    let job = RefineJob {
+        ds,
+        accel: &ctx.accel,
         baked,
-        &materials,
-        &lights,
-        cfg,
-        &all,
-        show_progress,
-    )?
-    .0)
+        cfg: &rcfg,
+        views: &all,
+        material_cache: false,
+        show_progress: ctx.progress(),
+    };
+    let s = oracle(ctx.scene, &job)?;
+    crate::cache::save(&path, key, w, hh, &s)?;
+    Ok(s)
 }

@@ -1,0 +1,108 @@
+//! What the stages of a run share: the scene as loaded, its ray-tracing structure, the config
+//! and its seeds, the output folder, the stage clock, and the words of an interrupted run.
+//!
+//! Owns: loading a run's inputs once, the stage times, the interrupt messages. Must not touch:
+//! what any stage computes.
+
+use crate::config::{Config, Seeds};
+use crate::pipeline::report::StageTimes;
+use anyhow::Result;
+use fipt_bake::Accel;
+use fipt_bake::integrators::bake::BakeConfig;
+use fipt_core::scene::{Dataset, LoadOptions, MapKind};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The maps FIPT reads, plus BaseColor and Metallic for the per-part table, and the relit
+/// photos.
+pub fn load_opts() -> LoadOptions {
+    let mut maps = MapKind::FIPT.to_vec();
+    maps.extend([MapKind::BaseColor, MapKind::Metallic, MapKind::Relight]);
+    LoadOptions { maps, val: true }
+}
+
+/// How `run` runs besides its config.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// No progress bars and no summary.
+    pub quiet: bool,
+    /// Fit the oracle shadings (see `run_with`).
+    pub oracle: bool,
+    /// Register the scene model in this zoo folder, under this name.
+    pub zoo: Option<(PathBuf, String)>,
+}
+
+/// A run's shared inputs and bookkeeping.
+pub struct RunContext<'a> {
+    pub scene: &'a Path,
+    pub out: &'a Path,
+    pub cfg: &'a Config,
+    pub opts: &'a RunOptions,
+    pub seeds: Seeds,
+    pub ds: Dataset,
+    pub accel: Accel,
+    /// The bake's config with the run's seed, and the key of its cached shadings.
+    pub bake_cfg: BakeConfig,
+    pub bake_key: u64,
+    pub times: StageTimes,
+    clock: Instant,
+}
+
+impl<'a> RunContext<'a> {
+    /// Loads the scene and builds its acceleration structure.
+    pub fn load(
+        scene: &'a Path,
+        out: &'a Path,
+        cfg: &'a Config,
+        opts: &'a RunOptions,
+    ) -> Result<Self> {
+        let clock = Instant::now();
+        let ds = Dataset::load(scene, &load_opts())?;
+        let accel = Accel::build(&ds.mesh);
+        let bake_cfg = cfg.bake_config();
+        let bake_key = crate::cache::cache_key(&ds, &bake_cfg);
+        Ok(Self {
+            scene,
+            out,
+            cfg,
+            opts,
+            seeds: cfg.seeds(),
+            ds,
+            accel,
+            bake_cfg,
+            bake_key,
+            times: StageTimes::default(),
+            clock,
+        })
+    }
+
+    /// Whether progress bars and summaries show.
+    pub fn progress(&self) -> bool {
+        !self.opts.quiet
+    }
+
+    /// Seconds since the last lap (or the load), restarting the clock.
+    pub fn lap(&mut self) -> f64 {
+        let s = self.clock.elapsed().as_secs_f64();
+        self.clock = Instant::now();
+        s
+    }
+
+    /// The one-line message of a run stopped by Ctrl-C at a stage boundary.
+    pub fn stopped(&self, after: &str) -> String {
+        format!(
+            "interrupted {after}; what is done is saved in {}: run the same command again to continue",
+            self.out.display()
+        )
+    }
+
+    /// Stops the run here if Ctrl-C asked for it (`after`: where, for the message).
+    pub fn check(&self, after: &str) -> Result<()> {
+        crate::interrupt::check(|| self.stopped(after))
+    }
+
+    /// An error of a stage, reworded when it is an interruption `during` that stage.
+    pub fn reword(&self, e: anyhow::Error, during: &str) -> anyhow::Error {
+        crate::interrupt::reword(e, || self.stopped(during))
+    }
+}

@@ -1,0 +1,117 @@
+//! `fipt-train landscape`: the per-part loss landscapes (`landscape`) of a run's shadings —
+//! baked, every refined round cached in its output folder, and the oracle's — into
+//! `out/landscape.json`, and their printed tables.
+//!
+//! Owns: that command's inputs and outputs. Must not touch: the sweep itself.
+
+use super::context::{RunContext, RunOptions};
+use super::landscape::{PartLandscape, landscape};
+use super::{bake, refine, score};
+use crate::config::Config;
+use crate::output::write_json;
+use anyhow::Result;
+use std::path::Path;
+
+/// `fipt-train landscape`: the per-part loss landscape of the baked shadings, of every refined
+/// round cached in `out/cache`, and with `oracle` of the oracle shadings; written to
+/// `out/landscape.json` and returned as (shadings name, table). With `fitted`, every table also
+/// sweeps σ at the base colour and metallic of the model `run` left in `out/maps/train`, and
+/// gives that model's own data term.
+pub fn landscapes(
+    scene: &Path,
+    out: &Path,
+    cfg: &Config,
+    oracle: bool,
+    fitted: bool,
+    quiet: bool,
+) -> Result<Vec<(String, Vec<PartLandscape>)>> {
+    let opts = RunOptions {
+        quiet,
+        oracle,
+        zoo: None,
+    };
+    let ctx = RunContext::load(scene, out, cfg, &opts)?;
+    let ds = &ctx.ds;
+    let maps = if fitted {
+        Some(score::read_train_maps(ds, out)?)
+    } else {
+        None
+    };
+    let maps = maps.as_deref();
+    let (baked, _) = bake::bake_cached(out, ds, &ctx.accel, &ctx.bake_cfg, ctx.progress())?;
+    // Each table's prior is the λ_d of the fit on those shadings (round 0's for the baked and
+    // the oracle shadings, round r's for `refine{r}.bin`).
+    let lambda = |r: usize| cfg.train_for_round(r).lambda_d;
+    let mut tables = vec![(
+        "baked".to_string(),
+        landscape(ds, &baked.hits, &baked.shadings, lambda(0), maps),
+    )];
+    let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
+    for r in 1.. {
+        let path = out.join("cache").join(format!("refine{r}.bin"));
+        let Some(s) = crate::cache::load_keyed(&path, None, n, w, h)? else {
+            break;
+        };
+        tables.push((
+            format!("refined{r}"),
+            landscape(ds, &baked.hits, &s, lambda(r), maps),
+        ));
+    }
+    if oracle {
+        let s = refine::oracle_cached(&ctx, &baked)?;
+        tables.push((
+            "oracle".to_string(),
+            landscape(ds, &baked.hits, &s, lambda(0), maps),
+        ));
+    }
+    let json: serde_json::Map<String, serde_json::Value> = tables
+        .iter()
+        .map(|(k, v)| (k.clone(), serde_json::to_value(v).unwrap_or_default()))
+        .collect();
+    write_json(&out.join("landscape.json"), &json)?;
+    Ok(tables)
+}
+
+/// Prints `landscapes`' tables: per part the argmin over σ at the true a and m, and where a
+/// fitted model was swept, where it stands.
+pub fn print_tables(tables: &[(String, Vec<PartLandscape>)]) {
+    for (name, rows) in tables {
+        println!("\n{name}: argmin over σ at the true a and m");
+        println!(
+            "part                  pixels   σ true  m true   argmin data   argmin data+prior   render/photo"
+        );
+        for r in rows {
+            println!(
+                "{:<20} {:>7}   {:>6.2}  {:>6.2}   {:>11.2}   {:>17.2}   {:>12.3}",
+                r.name,
+                r.pixels,
+                r.sigma_true,
+                r.m_true,
+                r.argmin_data,
+                r.argmin_total,
+                r.render_ratio
+            );
+        }
+        if rows.iter().any(|r| r.fitted.is_some()) {
+            println!("{name}: the fitted model (data terms x 1e4; at its a and m, σ swept)");
+            println!(
+                "part                 data at truth   fit σ   fit m   fit data   argmin at fit a, m   data there"
+            );
+            for r in rows {
+                if let Some(f) = &r.fitted {
+                    let best = f.data.iter().cloned().fold(f64::INFINITY, f64::min);
+                    println!(
+                        "{:<20} {:>13.3}   {:>5.2}   {:>5.2}   {:>8.3}   {:>18.2}   {:>10.3}",
+                        r.name,
+                        r.loss_true * 1e4,
+                        f.sigma,
+                        f.metallic,
+                        f.loss * 1e4,
+                        f.argmin_data,
+                        best * 1e4
+                    );
+                }
+            }
+        }
+    }
+}
