@@ -8,7 +8,7 @@
 
 use fipt_bake::emitters::LightSelection;
 use fipt_bake::integrators::path::PathConfig;
-use fipt_train::render::{RenderJob, render};
+use fipt_train::rerender::{RenderJob, render};
 use std::path::PathBuf;
 
 fn scene_dir() -> PathBuf {
@@ -18,7 +18,7 @@ fn scene_dir() -> PathBuf {
 fn job(out: &str, relight: bool) -> RenderJob {
     RenderJob {
         scene: Some(scene_dir()),
-        source: fipt_train::render::Source::Truth,
+        source: fipt_train::rerender::Source::Truth,
         insert: None,
         cache: false,
         material_cache: false,

@@ -57,7 +57,7 @@ fn cli(args: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// The trivial predictors of the val re-renders (`render::trivial_render_scores`).
+/// The trivial predictors of the val re-renders (`rerender::trivial_render_scores`).
 fn trivial_render_scores() -> (f64, f64) {
     let ds = Dataset::load(
         &scene_dir(),
@@ -67,7 +67,7 @@ fn trivial_render_scores() -> (f64, f64) {
         },
     )
     .unwrap();
-    let (v, r) = fipt_train::render::trivial_render_scores(&ds.val.as_ref().unwrap().views);
+    let (v, r) = fipt_train::rerender::trivial_render_scores(&ds.val.as_ref().unwrap().views);
     (v.unwrap(), r.unwrap())
 }
 

@@ -498,10 +498,10 @@ pub struct RenderSection {
     /// never does).
     pub cache: bool,
     /// Hits after the first segment read the learned field through a voxel cache (camera hits
-    /// read it exactly); see `render::RecoveredOptions`.
+    /// read it exactly); see `rerender::RecoveredOptions`.
     pub material_cache: bool,
     /// Relighting: switched-off emitters reflect with the learned field (a departure from the
-    /// reference, which makes them black; see `render::RecoveredOptions::off_reflect`).
+    /// reference, which makes them black; see `rerender::RecoveredOptions::off_reflect`).
     pub off_reflect: bool,
     /// Fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so camera hits
     /// repeat and the exact field is queried once per position (`PathConfig::pixel_positions`).

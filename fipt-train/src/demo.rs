@@ -10,7 +10,7 @@
 //! light transport (fipt-bake), the pipeline's stages.
 
 use crate::pipeline::predict::{ViewMaps, albedo_mc};
-use crate::render::{CamRef, Edits, TrueScene, render_truth};
+use crate::rerender::{CamRef, Edits, TrueScene, render_truth};
 use anyhow::{Context, Result};
 use fipt_bake::Accel;
 use fipt_bake::emitters::LightSelection;

@@ -156,7 +156,7 @@ fn metric_tables(h: &mut String, run: &RunReport, ds: &Dataset) {
     }
     if let Some(r) = &run.renders {
         let (vt, rt) = ds.val.as_ref().map_or((None, None), |v| {
-            crate::render::trivial_render_scores(&v.views)
+            crate::rerender::trivial_render_scores(&v.views)
         });
         let _ = write!(
             h,

@@ -17,7 +17,7 @@ pub mod learned;
 pub mod output;
 pub mod pipeline;
 pub mod progress;
-pub mod render;
+pub mod rerender;
 
 pub mod scene_model;
 pub mod zoo;

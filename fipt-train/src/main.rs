@@ -240,19 +240,19 @@ struct RenderArgs {
 
 impl RenderArgs {
     /// The render job these flags ask for.
-    fn job(self) -> anyhow::Result<fipt_train::render::RenderJob> {
+    fn job(self) -> anyhow::Result<fipt_train::rerender::RenderJob> {
         let p = self.pixel_positions;
         if p.isqrt().pow(2) != p {
             anyhow::bail!("--pixel-positions {p}: must be a square (0, 1, 4, 9, 16, ...)");
         }
         let source = match self.model {
-            Some(name_or_dir) => fipt_train::render::Source::Model {
+            Some(name_or_dir) => fipt_train::rerender::Source::Model {
                 name_or_dir,
                 zoo: fipt_train::zoo::working(self.zoo.as_deref()),
             },
-            None => fipt_train::render::Source::Truth,
+            None => fipt_train::rerender::Source::Truth,
         };
-        Ok(fipt_train::render::RenderJob {
+        Ok(fipt_train::rerender::RenderJob {
             scene: self.scene,
             out: self.out,
             source,
@@ -407,7 +407,7 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
         }),
         Cmd::Check { scene, json } => check::run(&scene, json),
         Cmd::Bake { job, json } => {
-            let r = pipeline::bake_job::bake_job(&job.scene, &job.out, &job.config()?, json)?;
+            let r = pipeline::bake_cmd::bake_job(&job.scene, &job.out, &job.config()?, json)?;
             print_json_or(json, &r, || r.print())
         }
         Cmd::Landscape {
@@ -424,7 +424,7 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
                     std::fs::read_to_string(job.out.join("landscape.json"))?
                 );
             } else {
-                pipeline::landscape_job::print_tables(&tables);
+                pipeline::landscape_cmd::print_tables(&tables);
             }
             Ok(())
         }
@@ -484,7 +484,7 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
         Cmd::Render(args) => {
             let json = args.json;
             let job = args.job()?;
-            let r = fipt_train::render::render(&job)?;
+            let r = fipt_train::rerender::render(&job)?;
             print_json_or(json, &r, || r.print(&job.out))
         }
         Cmd::DefaultConfig => print_json_or(true, &fipt_train::config::Config::default(), || {}),

@@ -11,7 +11,7 @@ use std::path::Path;
 /// emitters (`render --truth`), 1 and 2 threads: `views` val views (train where there is no
 /// val split) at `spp` samples per pixel, max depth 7, power-weighted light selection.
 pub fn render(scene: &Path, as_json: bool, spp: usize, views: usize, reps: usize) -> Result<()> {
-    use crate::render::{RenderJob, render};
+    use crate::rerender::{RenderJob, render};
     use fipt_bake::emitters::LightSelection;
     use fipt_bake::integrators::path::PathConfig;
     let out = std::env::temp_dir().join(format!("fipt-bench-render-{}", std::process::id()));
@@ -19,7 +19,7 @@ pub fn render(scene: &Path, as_json: bool, spp: usize, views: usize, reps: usize
     let job = RenderJob {
         scene: Some(scene.to_path_buf()),
         out: out.clone(),
-        source: crate::render::Source::Truth,
+        source: crate::rerender::Source::Truth,
         insert: None,
         cache: false,
         material_cache: false,
@@ -42,8 +42,9 @@ pub fn render(scene: &Path, as_json: bool, spp: usize, views: usize, reps: usize
             .num_threads(threads)
             .build()?;
         let runs = pool.install(|| (0..reps).map(|_| render(&job)).collect::<Result<Vec<_>>>())?;
-        let pick =
-            |f: &dyn Fn(&crate::render::RenderReport) -> f64| median(runs.iter().map(f).collect());
+        let pick = |f: &dyn Fn(&crate::rerender::RenderReport) -> f64| {
+            median(runs.iter().map(f).collect())
+        };
         let (paths, rays) = (pick(&|r| r.paths_per_s), pick(&|r| r.rays_per_s));
         if !as_json {
             println!(

@@ -10,13 +10,13 @@
 //! - `rounds`: the alternation of fit and refinement, resumable through `checkpoint`;
 //! - `predict`: per-view maps of the fitted model; `evaluate`: per-pixel scores; `score`:
 //!   scores of a run or a saved model; `outputs`: maps, re-renders, the scene model, reports;
-//! - `bake_job`, `landscape_job`: the `bake` and `landscape` commands (`landscape`: the
+//! - `bake_cmd`, `landscape_cmd`: the `bake` and `landscape` commands (`landscape`: the
 //!   per-part loss over σ).
 //!
 //! Owns: the order of the stages. Must not touch: stage internals, argument parsing.
 
 pub mod bake;
-pub mod bake_job;
+pub mod bake_cmd;
 pub mod batches;
 pub mod checkpoint;
 pub mod context;
@@ -25,7 +25,7 @@ pub mod extract;
 pub mod fit;
 pub mod hop;
 pub mod landscape;
-pub mod landscape_job;
+pub mod landscape_cmd;
 pub mod outputs;
 pub mod pixels;
 pub mod predict;
@@ -43,7 +43,7 @@ pub use context::RunOptions;
 use report::RunReport;
 use std::path::Path;
 
-pub use landscape_job::landscapes;
+pub use landscape_cmd::landscapes;
 pub use outputs::default_model_name;
 pub use score::{eval, eval_model};
 

@@ -13,7 +13,7 @@ use super::report::{GridReport, RoundReport, RunReport, ValRenders};
 use super::rounds::{FitSetup, Fitted};
 use super::score::score;
 use crate::output::{staged_dir, write_json, write_png};
-use crate::render::{CamRef, Edits, Recovered, RecoveredOptions, ViewRender, render_recovered};
+use crate::rerender::{CamRef, Edits, Recovered, RecoveredOptions, ViewRender, render_recovered};
 use anyhow::Result;
 use fipt_bake::integrators::path::PathConfig;
 use fipt_bake::{ViewHits, emitters};
@@ -238,7 +238,7 @@ pub fn run_report(
     renders: Option<ValRenders>,
 ) -> RunReport {
     let scored = |v: &[ViewRender]| {
-        crate::render::mean(&v.iter().filter_map(|r| r.psnr_db).collect::<Vec<_>>())
+        crate::rerender::mean(&v.iter().filter_map(|r| r.psnr_db).collect::<Vec<_>>())
     };
     let tr = &fitted.trainer;
     RunReport {

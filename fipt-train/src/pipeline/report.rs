@@ -124,8 +124,8 @@ pub struct ValRenders {
     pub relight_spp: usize,
     /// Whether view synthesis took L′ on rough secondary hits.
     pub cache: bool,
-    pub view: Vec<crate::render::ViewRender>,
-    pub relight: Vec<crate::render::ViewRender>,
+    pub view: Vec<crate::rerender::ViewRender>,
+    pub relight: Vec<crate::rerender::ViewRender>,
 }
 
 /// One round of the alternation: its shadings (baked for round 0, refined after), its fit and

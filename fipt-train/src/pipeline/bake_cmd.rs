@@ -24,8 +24,7 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
     };
     let ds = Dataset::load(scene, &opts)?;
     let accel = Accel::build(&ds.mesh);
-    let mut bake_cfg = cfg.bake.clone();
-    bake_cfg.seed = cfg.seed;
+    let bake_cfg = cfg.bake_config();
     let t1 = Instant::now();
     let (baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
     let bake_s = t1.elapsed().as_secs_f64();
