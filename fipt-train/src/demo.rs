@@ -6,7 +6,7 @@
 //! current, and a second demo skips the rendering. It is written under a temporary name and
 //! renamed, so it is complete or absent.
 //!
-//! Owns: the scene description's schema, the scene writer and the demo job. Must not touch:
+//! Owns: the scene description's schema (`Desc`), the scene writer and the demo job. Must not touch:
 //! light transport (fipt-bake), the pipeline's stages.
 
 use crate::pipeline::predict::{ViewMaps, albedo_mc};
@@ -23,7 +23,7 @@ use fipt_core::scene::procedural::PartMesh;
 use fipt_core::scene::{Camera, Image, MapKind, Mesh};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// The demo room, as shipped.
@@ -31,38 +31,41 @@ pub const DEMO_SCENE: &str = include_str!("../../configs/demo-scene.json");
 /// The demo's run configuration, as shipped.
 pub const DEMO_CONFIG: &str = include_str!("../../configs/demo.json");
 
-#[derive(Deserialize)]
+/// A room as data (`configs/demo-scene.json`'s schema; `suite::generate` draws them at random).
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct Desc {
-    name: String,
+pub struct Desc {
+    pub name: String,
     #[serde(default)]
-    description: String,
-    resolution: [usize; 2],
-    fov_x_deg: f64,
-    train_views: usize,
-    val_views: usize,
-    spp: usize,
-    max_depth: usize,
-    albedo_samples: usize,
-    seed: u64,
-    parts: Vec<PartDesc>,
-    relight: Relight,
+    pub description: String,
+    pub resolution: [usize; 2],
+    pub fov_x_deg: f64,
+    pub train_views: usize,
+    pub val_views: usize,
+    pub spp: usize,
+    pub max_depth: usize,
+    pub albedo_samples: usize,
+    pub seed: u64,
+    pub parts: Vec<PartDesc>,
+    pub relight: Relight,
 }
 
-#[derive(Deserialize)]
+/// One part: its shapes, its material and its emission.
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct PartDesc {
-    name: String,
-    semantic: String,
-    shapes: Vec<Shape>,
-    material: MatDesc,
+pub struct PartDesc {
+    pub name: String,
+    pub semantic: String,
+    pub shapes: Vec<Shape>,
+    pub material: MatDesc,
     #[serde(default)]
-    emission: Option<[f32; 3]>,
+    pub emission: Option<[f32; 3]>,
 }
 
-#[derive(Deserialize)]
+/// A shape of a part; grids face `u × v`, cuboids and spheres outwards.
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase", deny_unknown_fields)]
-enum Shape {
+pub enum Shape {
     Grid {
         origin: [f32; 3],
         u: [f32; 3],
@@ -81,27 +84,28 @@ enum Shape {
     },
 }
 
-#[derive(Deserialize)]
+/// A part's material: a constant base colour or a checker texture.
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct MatDesc {
+pub struct MatDesc {
     #[serde(default)]
-    base_color: Option<[f32; 3]>,
+    pub base_color: Option<[f32; 3]>,
     #[serde(default)]
-    checker: Option<Checker>,
-    roughness: f32,
-    metallic: f32,
+    pub checker: Option<Checker>,
+    pub roughness: f32,
+    pub metallic: f32,
 }
 
 /// A two-colour checker texture, mapped planar-world.
-#[derive(Deserialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct Checker {
-    colors: [[f32; 3]; 2],
-    cells: [usize; 2],
-    size: [f32; 2],
-    origin: [f32; 3],
-    axis_u: [f32; 3],
-    axis_v: [f32; 3],
+pub struct Checker {
+    pub colors: [[f32; 3]; 2],
+    pub cells: [usize; 2],
+    pub size: [f32; 2],
+    pub origin: [f32; 3],
+    pub axis_u: [f32; 3],
+    pub axis_v: [f32; 3],
 }
 
 /// The mesh of every part, parts in order (contiguous triangle ranges).
@@ -287,9 +291,9 @@ fn gt_maps(sc: &DemoScene, cam: &Camera, view_key: u64) -> (ViewMaps, Vec<f32>, 
 }
 
 /// The cache stamp: the description and the code version.
-fn stamp() -> String {
+fn stamp(text: &str) -> String {
     let mut h = Fnv64::default();
-    h.bytes(DEMO_SCENE.as_bytes());
+    h.bytes(text.as_bytes());
     h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
     format!("{:016x}", h.finish())
 }
@@ -299,11 +303,18 @@ const STAMP_FILE: &str = "demo.stamp";
 /// Writes the demo scene into `dir` unless it is there and current; returns whether it was
 /// written.
 pub fn write_scene(dir: &Path, quiet: bool) -> Result<bool> {
-    let s = stamp();
+    write_scene_text(dir, DEMO_SCENE, "configs/demo-scene.json", quiet)
+}
+
+/// Writes the scene that the description `text` (named `what` in errors) gives into `dir`
+/// unless it is there and current (its stamp: the text and the code version); returns whether
+/// it was written.
+pub fn write_scene_text(dir: &Path, text: &str, what: &str, quiet: bool) -> Result<bool> {
+    let s = stamp(text);
     if std::fs::read_to_string(dir.join(STAMP_FILE)).is_ok_and(|t| t.trim() == s) {
         return Ok(false);
     }
-    let d: Desc = serde_json::from_str(DEMO_SCENE).context("configs/demo-scene.json: malformed")?;
+    let d: Desc = serde_json::from_str(text).with_context(|| format!("{what}: malformed"))?;
     crate::output::staged_dir(dir, |tmp| {
         std::fs::create_dir_all(tmp.join("textures"))
             .with_context(|| format!("{}: cannot create", tmp.display()))?;
@@ -520,35 +531,51 @@ pub fn demo(out: &Path, quiet: bool) -> Result<PathBuf> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    /// The shipped description parses and builds a closed room: every part has triangles, every
-    /// wall faces inwards (a ray from the room's centre hits each wall, floor and ceiling on
-    /// its front), the cameras are deterministic, and every emitter is seen from the front by
-    /// a train camera's pixel-centre rays.
+    /// The shipped description parses and builds a sound room (`assert_room_sound`).
     #[test]
     fn shipped_room_is_sound() {
         let d: Desc = serde_json::from_str(DEMO_SCENE).unwrap();
-        let (mesh, ranges) = build_mesh(&d);
-        assert!(ranges.iter().all(|r| r[1] > r[0]));
+        assert_room_sound(&d);
+    }
+
+    /// Every part has triangles, every wall faces inwards (a ray from the room's centre hits
+    /// each wall, floor and ceiling on its front), the cameras are deterministic, and every
+    /// emitter is seen from the front by a train camera's pixel-centre rays.
+    pub(crate) fn assert_room_sound(d: &Desc) {
+        let (mesh, ranges) = build_mesh(d);
+        assert!(
+            ranges.iter().all(|r| r[1] > r[0]),
+            "{}: an empty part",
+            d.name
+        );
         mesh.validate(Path::new("demo")).unwrap();
         let accel = Accel::build(&mesh);
-        let centre = Vec3::new(2.03, 1.61, 1.57);
+        let (lo, hi) = mesh.bounds();
+        // Off the grids' cell edges.
+        let at = |f: f32, a: f32, b: f32| a + f * (b - a);
+        let centre = Vec3::new(
+            at(0.507, lo.x, hi.x),
+            at(0.62, lo.y, hi.y),
+            at(0.49, lo.z, hi.z),
+        );
         for dir in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
             let h = accel
                 .closest(centre, dir, 0.0, f32::INFINITY)
-                .unwrap_or_else(|| panic!("no hit towards {dir}"));
+                .unwrap_or_else(|| panic!("{}: no hit towards {dir}", d.name));
             assert!(
                 mesh.cross(h.tri as usize).dot(-dir) > 0.0,
-                "back face towards {dir}"
+                "{}: back face towards {dir}",
+                d.name
             );
         }
-        let cams = cameras(&d, &mesh, &ranges, d.train_views, 1);
+        let cams = cameras(d, &mesh, &ranges, d.train_views, 1);
         assert_eq!(cams.len(), d.train_views);
         assert_eq!(
             cams[3].origin,
-            cameras(&d, &mesh, &ranges, d.train_views, 1)[3].origin
+            cameras(d, &mesh, &ranges, d.train_views, 1)[3].origin
         );
         let mut seen = vec![false; d.parts.len()];
         for c in &cams {
@@ -569,7 +596,11 @@ mod tests {
         }
         for (p, s) in d.parts.iter().zip(&seen) {
             if p.emission.is_some() {
-                assert!(*s, "emitter {} is never seen from the front", p.name);
+                assert!(
+                    *s,
+                    "{}: emitter {} is never seen from the front",
+                    d.name, p.name
+                );
             }
         }
     }

@@ -20,4 +20,5 @@ pub mod progress;
 pub mod rerender;
 
 pub mod scene_model;
+pub mod suite;
 pub mod zoo;

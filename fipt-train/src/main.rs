@@ -155,6 +155,27 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The scene suite: rooms drawn at random (cached), the whole method on each, figures per
+    /// scene and part and per half (even seeds tune, odd seeds are held out); resumable.
+    Suite {
+        /// Output folder (scenes in OUT/scenes, runs in OUT/runs, OUT/suite.json).
+        #[arg(long, default_value = "out/suite")]
+        out: PathBuf,
+        /// Number of scenes (seeds FIRST_SEED ..).
+        #[arg(long, default_value_t = 8)]
+        scenes: usize,
+        #[arg(long, default_value_t = 0)]
+        first_seed: u64,
+        /// Scene size: full (160x120, 30-60 views) or small (96x72, 16 views).
+        #[arg(long, default_value = "full")]
+        size: String,
+        /// Config file (JSON); defaults to `configs/default.json`'s values.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// No progress bars; print suite.json to stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Print the default configuration (`configs/default.json`) as JSON.
     DefaultConfig,
     /// Benchmarks (JSON out with --json).
@@ -383,7 +404,7 @@ fn main() {
         quiet: false,
     });
     // Ctrl-C asks the long commands to stop at a safe point (`interrupt`).
-    if matches!(cmd, Cmd::Demo { .. } | Cmd::Run { .. }) {
+    if matches!(cmd, Cmd::Demo { .. } | Cmd::Run { .. } | Cmd::Suite { .. }) {
         fipt_train::interrupt::install();
     }
     if let Err(e) = dispatch(cmd) {
@@ -486,6 +507,34 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             let job = args.job()?;
             let r = fipt_train::rerender::render(&job)?;
             print_json_or(json, &r, || r.print(&job.out))
+        }
+        Cmd::Suite {
+            out,
+            scenes,
+            first_seed,
+            size,
+            config,
+            json,
+        } => {
+            let size = match size.as_str() {
+                "full" => fipt_train::suite::SceneSize::Full,
+                "small" => fipt_train::suite::SceneSize::Small,
+                s => anyhow::bail!("--size {s}: expected full or small"),
+            };
+            let config = match &config {
+                Some(p) => fipt_train::config::Config::load(p)?,
+                None => fipt_train::config::Config::default(),
+            };
+            let job = fipt_train::suite::SuiteJob {
+                out,
+                first_seed,
+                scenes,
+                size,
+                config,
+                quiet: json,
+            };
+            let r = fipt_train::suite::run_suite(&job)?;
+            print_json_or(json, &r, || {})
         }
         Cmd::DefaultConfig => print_json_or(true, &fipt_train::config::Config::default(), || {}),
         Cmd::Bench { what } => bench_cmd(what),

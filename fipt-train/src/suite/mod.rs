@@ -1,0 +1,110 @@
+//! `fipt-train suite`: many rooms drawn at random (`generate`), rendered by fipt's own path
+//! tracer into the FIPT synthetic layout (cached per scene), the whole method run on each with
+//! one config, one scene after another, and the figures gathered per scene and per part
+//! (`report`). Scenes of even seed form the **tuning** half, odd seeds the **held-out** half:
+//! defaults are chosen on the first and reported on the second.
+//!
+//! A killed suite resumes: a scene whose folder is current is not rendered again, a run whose
+//! `metrics.json` was written with the same config is not run again, and an unfinished run
+//! resumes from its checkpoint (`pipeline::run_with`).
+//!
+//! Owns: the suite's folders (`OUT/scenes/`, `OUT/runs/`) and `OUT/suite.json`. Must not touch:
+//! the pipeline's stages.
+
+pub mod generate;
+pub mod report;
+
+use crate::config::Config;
+use crate::output::write_json;
+use crate::pipeline::report::RunReport;
+use crate::pipeline::{RunOptions, run_with};
+use anyhow::{Context, Result};
+pub use generate::SceneSize;
+use report::{SceneRow, SuiteReport};
+use std::path::{Path, PathBuf};
+
+/// What a suite runs.
+#[derive(Clone, Debug)]
+pub struct SuiteJob {
+    pub out: PathBuf,
+    /// Scene seeds `first_seed .. first_seed + scenes`.
+    pub first_seed: u64,
+    pub scenes: usize,
+    pub size: SceneSize,
+    pub config: Config,
+    pub quiet: bool,
+}
+
+/// Which half of the suite a scene seed belongs to.
+pub fn half(seed: u64) -> &'static str {
+    if seed.is_multiple_of(2) {
+        "tuning"
+    } else {
+        "held-out"
+    }
+}
+
+/// Renders (or reuses) every scene, runs (or resumes, or reuses) every run, and writes
+/// `OUT/suite.json`.
+pub fn run_suite(job: &SuiteJob) -> Result<SuiteReport> {
+    let mut rows = Vec::new();
+    for seed in job.first_seed..job.first_seed + job.scenes as u64 {
+        let scene = scene_folder(&job.out, seed, job.size, job.quiet)?;
+        let out = job.out.join("runs").join(format!("suite-{seed:03}"));
+        let t = std::time::Instant::now();
+        let report = run_scene(&scene, &out, &job.config, job.quiet)?;
+        let row = SceneRow::new(seed, half(seed), &scene, &report)?;
+        if !job.quiet {
+            println!(
+                "suite scene {seed} ({}): k_d {}, σ {} (constant {}), {:.0} s",
+                row.half,
+                report::db(row.kd_psnr),
+                report::db(row.roughness_psnr),
+                report::db(row.constant_roughness_psnr),
+                t.elapsed().as_secs_f64()
+            );
+        }
+        rows.push(row);
+    }
+    let r = SuiteReport::new(job.size, rows);
+    write_json(&job.out.join("suite.json"), &r)?;
+    if !job.quiet {
+        r.print();
+    }
+    Ok(r)
+}
+
+/// The folder of suite scene `seed`, rendered unless it is there and current.
+pub fn scene_folder(out: &Path, seed: u64, size: SceneSize, quiet: bool) -> Result<PathBuf> {
+    let dir = out.join("scenes").join(format!("suite-{seed:03}"));
+    let desc = generate::room(seed, size);
+    let text = serde_json::to_string_pretty(&desc)?;
+    let t = std::time::Instant::now();
+    if crate::demo::write_scene_text(&dir, &text, &desc.name, quiet)? && !quiet {
+        println!(
+            "suite scene {seed} rendered in {:.0} s: {}",
+            t.elapsed().as_secs_f64(),
+            dir.display()
+        );
+    }
+    Ok(dir)
+}
+
+/// The run of one scene: reused when its `metrics.json` was written with this config,
+/// else run (resuming from its checkpoint when there is one). No zoo entry.
+fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
+    let metrics = out.join("metrics.json");
+    let same_config = Config::load(&out.join("config.json")).is_ok_and(|c| c == *cfg);
+    if same_config && metrics.is_file() {
+        let text = fipt_core::io::read_text(&metrics)?;
+        if let Ok(r) = serde_json::from_str::<RunReport>(&text) {
+            return Ok(r);
+        }
+    }
+    let opts = RunOptions {
+        quiet,
+        oracle: false,
+        zoo: None,
+    };
+    run_with(scene, out, cfg, &opts).with_context(|| format!("suite run {}", out.display()))
+}
