@@ -12,7 +12,7 @@ pub mod meta;
 pub mod procedural;
 pub mod scene_box;
 
-pub use camera::Camera;
+pub use camera::{Camera, Intrinsics};
 pub use dataset::{Dataset, LoadOptions, MapKind, Split, View};
 pub use image::Image;
 pub use mesh::Mesh;

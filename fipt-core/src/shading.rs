@@ -4,8 +4,11 @@
 //!
 //! Owns: the one definition of that layout. Must not touch: how shadings are estimated or used.
 
-use crate::brdf::ROUGHNESS_LEVELS;
 use std::ops::Range;
+
+/// Number of pre-integrated roughness levels in the shading cache (their roughness values are
+/// `brdf::roughness_levels`).
+pub const ROUGHNESS_LEVELS: usize = 6;
 
 /// Offsets of the blocks in one pixel's packed shadings:
 /// `[L_d (3) | L_s0 level 0..L (L × 3) | L_s1 level 0..L (L × 3)]`, L = `ROUGHNESS_LEVELS`.

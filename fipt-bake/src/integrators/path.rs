@@ -135,6 +135,18 @@ struct PathState {
     alive: bool,
 }
 
+/// Where a path's ray ended in one wavefront: the hit at distance `t` on triangle `tri` with
+/// its material, L′ there where the radiance cache applies (0 elsewhere, `cache_lookups`), and
+/// the segment `depth` the ray was.
+#[derive(Clone, Copy)]
+struct PathVertex {
+    t: f32,
+    tri: u32,
+    mat: SurfaceMaterial,
+    cached: Vec3,
+    depth: usize,
+}
+
 /// Power heuristic weight of a strategy with pdf `a` against one with pdf `b`.
 #[inline]
 pub fn power_heuristic(a: f32, b: f32) -> f32 {
@@ -325,7 +337,14 @@ impl PathScene<'_> {
                         ps.alive = false;
                         return 0;
                     };
-                    self.shade(ps, t, tri, mats[m as usize], l, depth, cfg)
+                    let vertex = PathVertex {
+                        t,
+                        tri,
+                        mat: mats[m as usize],
+                        cached: l,
+                        depth,
+                    };
+                    self.shade(ps, &vertex, cfg)
                 })
                 .sum();
             stats.shadow_rays += shadow;
@@ -424,19 +443,16 @@ impl PathScene<'_> {
         out
     }
 
-    /// One vertex of a path at distance `t` on triangle `tri`; `cached` is L′ there where the
-    /// radiance cache applies (`cache_lookups`). Returns the shadow rays cast.
-    #[allow(clippy::too_many_arguments)]
-    fn shade(
-        &self,
-        ps: &mut PathState,
-        t: f32,
-        tri: u32,
-        mat: SurfaceMaterial,
-        cached: Vec3,
-        depth: usize,
-        cfg: &PathConfig,
-    ) -> u64 {
+    /// Shades path `ps` at its next vertex `v`: emission, the radiance cache, next-event
+    /// estimation and the next BRDF-sampled ray. Returns the shadow rays cast.
+    fn shade(&self, ps: &mut PathState, v: &PathVertex, cfg: &PathConfig) -> u64 {
+        let PathVertex {
+            t,
+            tri,
+            mat,
+            cached,
+            depth,
+        } = *v;
         let x = ps.origin + ps.dir * t;
         let wo = -ps.dir;
         // Emission seen along the ray, weighted against light sampling when a BRDF sample

@@ -146,21 +146,34 @@ fn specular_integrands(wo: Vec3, wi: Vec3, sigma: f32) -> (f32, f32) {
     (base * f0, base * f1)
 }
 
-/// The light-sampled part of every estimator at one pixel (point x, normal `n` facing the
-/// outgoing direction `wo`): `count` light samples at x, each weighted by the power heuristic
-/// against the estimator's BRDF samples (`samples`); added to `acc`. Returns the shadow rays
-/// cast.
-#[allow(clippy::too_many_arguments)]
-fn light_sampled(
-    scene: &PathScene,
+/// The light samples taken at one pixel's first hit: the point x, its normal `n` facing the
+/// outgoing direction `wo`, how many light samples (`count`), and the estimators' BRDF sample
+/// counts (`samples`) that the power heuristic weighs them against.
+#[derive(Clone, Copy)]
+struct LightQuery<'a> {
     x: Vec3,
     n: Vec3,
     wo: Vec3,
-    samples: &BakeSamples,
+    samples: &'a BakeSamples,
     count: usize,
+}
+
+/// The light-sampled part of every estimator at one pixel (`q`): each light sample weighted by
+/// the power heuristic against the estimator's BRDF samples; added to `acc`. Returns the
+/// shadow rays cast.
+fn light_sampled(
+    scene: &PathScene,
+    q: &LightQuery,
     rng: &mut Rng,
     acc: &mut [f32; ShadingLayout::DIM],
 ) -> u64 {
+    let LightQuery {
+        x,
+        n,
+        wo,
+        samples,
+        count,
+    } = *q;
     let frame = Frame::new(n);
     let wo_l = frame.to_local(wo);
     let nl = count as f32;
@@ -273,16 +286,14 @@ pub fn refine_view(
                 let mut shadow = 0;
                 if nl > 0 {
                     let mut rng = Rng::new(cfg.seed ^ 0x11_9447, (view_key << 32) | p as u64);
-                    shadow = light_sampled(
-                        scene,
-                        hits.position[p],
-                        hits.normal[p],
-                        -hits.direction[p],
-                        &cfg.samples,
-                        nl,
-                        &mut rng,
-                        &mut acc,
-                    );
+                    let q = LightQuery {
+                        x: hits.position[p],
+                        n: hits.normal[p],
+                        wo: -hits.direction[p],
+                        samples: &cfg.samples,
+                        count: nl,
+                    };
+                    shadow = light_sampled(scene, &q, &mut rng, &mut acc);
                 }
                 for i in k * per_pixel..(k + 1) * per_pixel {
                     let l = radiance[i];

@@ -8,6 +8,8 @@ mod frame;
 mod ggx;
 mod sample;
 
+/// The number of roughness levels; defined with the shading layout (`crate::shading`).
+pub use crate::shading::ROUGHNESS_LEVELS;
 use crate::shading::ShadingLayout;
 pub use frame::Frame;
 pub use ggx::{fresnel_split, g_schlick_over, ggx_d, reflectances, specular_weights};
@@ -18,9 +20,6 @@ pub use sample::{
 
 /// Roughness floor of the material field (reference: σ = 0.02 + 0.98·s).
 pub const SIGMA_MIN: f32 = 0.02;
-/// Number of pre-integrated roughness levels in the shading cache.
-pub const ROUGHNESS_LEVELS: usize = 6;
-
 /// The roughness levels linspace(0.02, 1, 6) of the shading cache.
 pub fn roughness_levels() -> [f32; ROUGHNESS_LEVELS] {
     let mut r = [0.0; ROUGHNESS_LEVELS];

@@ -461,7 +461,14 @@ impl HashGrid {
             .zip(m_levels)
             .zip(self.levels.par_iter())
             .enumerate()
-            .map(|(l, ((gv, mark), level))| scatter_level(level, l, &up, gv, mark, stamp))
+            .map(|(l, ((values, mark), level))| {
+                let grad = LevelGrad {
+                    values,
+                    mark,
+                    stamp,
+                };
+                scatter_level(level, l, &up, grad)
+            })
             .collect();
         grad.touched = touched;
     }
@@ -500,11 +507,17 @@ impl HashGrid {
             .zip(k_l)
             .zip(levels.par_iter())
             .enumerate()
-            .for_each(|(l, (((((p, m), v), gv), mark), level))| {
+            .for_each(|(l, (((((p, m), v), values), mark), level))| {
+                let params = AdamLevel { p, m, v };
                 if dense_update(level, xs.len()) {
-                    dense_adam_level(&coef, level, l, &up, (p, m, v), gv, mark, stamp);
+                    let grad = LevelGrad {
+                        values,
+                        mark,
+                        stamp,
+                    };
+                    dense_adam_level(&coef, level, l, &up, params, grad);
                 } else {
-                    sorted_adam_level(&coef, level, l, &up, (p, m, v));
+                    sorted_adam_level(&coef, level, l, &up, params);
                 }
             });
         grad.touched.clear();
@@ -685,7 +698,7 @@ impl TableAdam {
             .zip(levels.par_iter())
             .zip(touched.par_iter())
             .for_each(|(((((p, m), v), g), level), list)| {
-                adam_level(&coef, level, nf, list, p, m, v, g)
+                adam_level(&coef, level, nf, list, AdamLevel { p, m, v }, g)
             });
     }
 
@@ -740,16 +753,28 @@ impl Upstream<'_> {
     }
 }
 
-/// Scatters one level's share of the output gradient; returns its touched entries (global).
-#[allow(clippy::too_many_arguments)]
-fn scatter_level(
-    level: &Level,
-    l: usize,
-    up: &Upstream,
-    gv: &mut [f32],
-    mark: &mut [u32],
+/// One level's part of the table and of Adam's two moments (features per entry each).
+struct AdamLevel<'a> {
+    p: &'a mut [f32],
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+}
+
+/// One level's part of the dense table gradient and its touch marks: an entry was touched this
+/// step where its mark equals `stamp`.
+struct LevelGrad<'a> {
+    values: &'a mut [f32],
+    mark: &'a mut [u32],
     stamp: u32,
-) -> Vec<u32> {
+}
+
+/// Scatters one level's share of the output gradient; returns its touched entries (global).
+fn scatter_level(level: &Level, l: usize, up: &Upstream, grad: LevelGrad) -> Vec<u32> {
+    let LevelGrad {
+        values: gv,
+        mark,
+        stamp,
+    } = grad;
     let nf = up.nf;
     let mut t = Vec::new();
     for (p, &x) in up.xs.iter().enumerate() {
@@ -781,17 +806,19 @@ fn dense_update(level: &Level, points: usize) -> bool {
 /// touch is added to its entry in touch order (the order `scatter_level` and
 /// `sorted_adam_level` sum in, so the update is bit-identical to both), then one sweep in
 /// entry order applies Adam to the entries touched this step (`stamp`) and zeroes them.
-#[allow(clippy::too_many_arguments)]
 fn dense_adam_level(
     c: &AdamCoef,
     level: &Level,
     l: usize,
     up: &Upstream,
-    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
-    gv: &mut [f32],
-    mark: &mut [u32],
-    stamp: u32,
+    params: AdamLevel,
+    grad: LevelGrad,
 ) {
+    let LevelGrad {
+        values: gv,
+        mark,
+        stamp,
+    } = grad;
     let nf = up.nf;
     for (pi, &x) in up.xs.iter().enumerate() {
         let cl = cell(level, x);
@@ -805,10 +832,15 @@ fn dense_adam_level(
         }
     }
     // The feature count a constant where it is the usual 2, so that the sweep vectorises.
+    let grad = LevelGrad {
+        values: gv,
+        mark,
+        stamp,
+    };
     if nf == 2 {
-        sweep(c, (p, m, v), gv, mark, stamp, 2);
+        sweep(c, params, grad, 2);
     } else {
-        sweep(c, (p, m, v), gv, mark, stamp, nf);
+        sweep(c, params, grad, nf);
     }
 }
 
@@ -817,20 +849,19 @@ fn dense_adam_level(
 /// loop vectorises and the kept values are `apply`'s. The gradient is zeroed everywhere
 /// (unmarked entries hold zero already).
 #[inline(always)]
-fn sweep(
-    c: &AdamCoef,
-    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
-    gv: &mut [f32],
-    mark: &[u32],
-    stamp: u32,
-    nf: usize,
-) {
+fn sweep(c: &AdamCoef, params: AdamLevel, grad: LevelGrad, nf: usize) {
+    let AdamLevel { p, m, v } = params;
+    let LevelGrad {
+        values: gv,
+        mark,
+        stamp,
+    } = grad;
     for ((((pe, me), ve), ge), &mk) in p
         .chunks_exact_mut(nf)
         .zip(m.chunks_exact_mut(nf))
         .zip(v.chunks_exact_mut(nf))
         .zip(gv.chunks_exact_mut(nf))
-        .zip(mark)
+        .zip(mark.iter())
     {
         let keep = mk == stamp;
         for f in 0..nf {
@@ -849,13 +880,8 @@ fn sweep(
 /// touch order, which is the order `scatter_level` adds them in, so the gradient and the update
 /// are bit-identical to the two-pass path. Walking the table in address order instead of in
 /// first-touch order turns ~6 cache misses per touched entry into sequential sweeps.
-fn sorted_adam_level(
-    c: &AdamCoef,
-    level: &Level,
-    l: usize,
-    up: &Upstream,
-    (p, m, v): (&mut [f32], &mut [f32], &mut [f32]),
-) {
+fn sorted_adam_level(c: &AdamCoef, level: &Level, l: usize, up: &Upstream, params: AdamLevel) {
+    let AdamLevel { p, m, v } = params;
     let nf = up.nf;
     let touches = up.xs.len() * 8;
     // (entry << 32 | touch) pairs and each touch's contribution, in touch order.
@@ -916,18 +942,16 @@ fn radix_sort_high(keys: &mut Vec<u64>, key_bits: u32) {
     }
 }
 
-/// Adam on one level's touched entries; zeroes their gradient.
-#[allow(clippy::too_many_arguments)]
+/// Adam on one level's touched entries (`list`, global indices); zeroes their gradient `g`.
 fn adam_level(
     c: &AdamCoef,
     level: &Level,
     nf: usize,
     list: &[u32],
-    p: &mut [f32],
-    m: &mut [f32],
-    v: &mut [f32],
+    params: AdamLevel,
     g: &mut [f32],
 ) {
+    let AdamLevel { p, m, v } = params;
     for &e in list {
         let base = (e as usize - level.offset) * nf;
         for i in base..base + nf {
@@ -1163,9 +1187,22 @@ mod tests {
                 split_levels(&levels, nf, &mut ab.v),
             );
             for (l, level) in levels.iter().enumerate() {
-                let a_parts = (&mut *pa[l], &mut *ma[l], &mut *va[l]);
-                dense_adam_level(&ca, level, l, &up, a_parts, gl[l], kl[l], ga.step);
-                let b_parts = (&mut *pb[l], &mut *mb[l], &mut *vb[l]);
+                let a_parts = AdamLevel {
+                    p: &mut *pa[l],
+                    m: &mut *ma[l],
+                    v: &mut *va[l],
+                };
+                let a_grad = LevelGrad {
+                    values: &mut *gl[l],
+                    mark: &mut *kl[l],
+                    stamp: ga.step,
+                };
+                dense_adam_level(&ca, level, l, &up, a_parts, a_grad);
+                let b_parts = AdamLevel {
+                    p: &mut *pb[l],
+                    m: &mut *mb[l],
+                    v: &mut *vb[l],
+                };
                 sorted_adam_level(&cb, level, l, &up, b_parts);
             }
             assert!(ga.values.iter().all(|v| *v == 0.0));

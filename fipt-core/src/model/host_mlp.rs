@@ -55,6 +55,29 @@ pub struct MlpGrads {
     pub bias: Vec<Option<Vec<f32>>>,
 }
 
+/// What a backward reads: the forward's input (N × input) and tape, and d loss / d output
+/// (N × output).
+#[derive(Clone, Copy)]
+struct BackwardRun<'a> {
+    x: &'a [f32],
+    tape: &'a Tape,
+    d_out: &'a [f32],
+}
+
+/// The rows r0..r0 + m one block covers.
+#[derive(Clone, Copy)]
+struct BlockRows {
+    r0: usize,
+    m: usize,
+}
+
+/// One task's working rows for a block's backward (`BLOCK` × the widest layer each): the
+/// current layer's pre-activation gradient dz and its input's gradient dh.
+struct BlockScratch {
+    dz: Vec<f32>,
+    dh: Vec<f32>,
+}
+
 /// One part of a layer's input, in the order of the layer's weight rows.
 #[derive(Clone, Copy)]
 enum Part {
@@ -70,20 +93,42 @@ struct Rows(*mut f32);
 unsafe impl Send for Rows {}
 unsafe impl Sync for Rows {}
 
-/// dst (m × n, row stride `dst_rs`) = [dst +] A·B, with A (m × k) and B (k × n) given by their
-/// row and column strides; single-threaded (the caller parallelises over blocks).
+/// The shape of a product A·B: A is m × k, B is k × n.
+#[derive(Clone, Copy)]
+struct Shape {
+    m: usize,
+    n: usize,
+    k: usize,
+}
+
+/// A matrix `mm` reads: its first element and its row and column strides (in floats).
+#[derive(Clone, Copy)]
+struct MatRef {
+    ptr: *const f32,
+    row_stride: usize,
+    col_stride: usize,
+}
+
+/// The matrix `mm` writes: its first element, its row stride (columns are contiguous) and
+/// whether the product is added to what it holds rather than replacing it.
+#[derive(Clone, Copy)]
+struct MatDst {
+    ptr: *mut f32,
+    row_stride: usize,
+    accumulate: bool,
+}
+
+/// dst (m × n) = [dst +] A·B; single-threaded (the caller parallelises over blocks).
 ///
 /// # Safety
 /// Every pointer must address its whole matrix under its strides; dst must not alias A or B.
-#[allow(clippy::too_many_arguments)]
-unsafe fn mm(
-    (m, n, k): (usize, usize, usize),
-    dst: *mut f32,
-    dst_rs: usize,
-    accumulate: bool,
-    a: (*const f32, usize, usize),
-    b: (*const f32, usize, usize),
-) {
+unsafe fn mm(shape: Shape, dst: MatDst, a: MatRef, b: MatRef) {
+    let Shape { m, n, k } = shape;
+    let MatDst {
+        ptr: dst,
+        row_stride: dst_rs,
+        accumulate,
+    } = dst;
     if m == 0 || n == 0 {
         return;
     }
@@ -104,12 +149,12 @@ unsafe fn mm(
             1,
             dst_rs as isize,
             accumulate,
-            a.0,
-            a.2 as isize,
-            a.1 as isize,
-            b.0,
-            b.2 as isize,
-            b.1 as isize,
+            a.ptr,
+            a.col_stride as isize,
+            a.row_stride as isize,
+            b.ptr,
+            b.col_stride as isize,
+            b.row_stride as isize,
             1.0,
             1.0,
             false,
@@ -193,7 +238,7 @@ impl HostMlp {
                 // SAFETY: rows r0..r0+m of each buffer belong to this block alone.
                 unsafe {
                     let d = dst.0.add(r0 * l.output);
-                    self.layer_forward(i, x, &hp, r0, m, d);
+                    self.layer_forward(i, x, &hp, BlockRows { r0, m }, d);
                     let rows = std::slice::from_raw_parts_mut(d, m * l.output);
                     bias_relu(rows, l.bias.as_deref(), l.output, i < last);
                 }
@@ -212,10 +257,10 @@ impl HostMlp {
         i: usize,
         x: &[f32],
         hp: &[Rows],
-        r0: usize,
-        m: usize,
+        rows: BlockRows,
         dst: *mut f32,
     ) {
+        let BlockRows { r0, m } = rows;
         let (o, w) = (self.layers[i].output, self.layers[i].weight.as_ptr());
         let din = self.input();
         // Each part of the input times its rows of W_i, summed into dst.
@@ -230,12 +275,22 @@ impl HostMlp {
             };
             unsafe {
                 mm(
-                    (m, o, width),
-                    dst,
-                    o,
-                    k > 0,
-                    (a, width, 1),
-                    (w.add(row * o), o, 1),
+                    Shape { m, n: o, k: width },
+                    MatDst {
+                        ptr: dst,
+                        row_stride: o,
+                        accumulate: k > 0,
+                    },
+                    MatRef {
+                        ptr: a,
+                        row_stride: width,
+                        col_stride: 1,
+                    },
+                    MatRef {
+                        ptr: w.add(row * o),
+                        row_stride: o,
+                        col_stride: 1,
+                    },
                 )
             };
             row += width;
@@ -269,20 +324,24 @@ impl HostMlp {
         );
         let mut dx = want_dx.then(|| vec![0.0; n * din]);
         let dxp = dx.as_mut().map(|d| Rows(d.as_mut_ptr()));
+        let run = BackwardRun { x, tape, d_out };
         let partials: Vec<MlpGrads> = (0..n.div_ceil(GROUP))
             .into_par_iter()
             .map(|g| {
                 let mut acc = self.zero_grads();
                 let width = self.layers.iter().map(|l| l.input.max(l.output)).max();
                 let width = width.unwrap_or(0);
-                let mut dz = vec![0.0; BLOCK * width];
-                let mut dh = vec![0.0; BLOCK * width];
+                let mut scratch = BlockScratch {
+                    dz: vec![0.0; BLOCK * width],
+                    dh: vec![0.0; BLOCK * width],
+                };
                 let end = ((g + 1) * GROUP).min(n);
                 for r0 in (g * GROUP..end).step_by(BLOCK) {
                     let m = BLOCK.min(end - r0);
                     // SAFETY: rows r0..r0+m of dx belong to this block alone.
                     let dxb = dxp.map(|p| unsafe { p.0.add(r0 * din) });
-                    self.block_backward(x, tape, d_out, r0, m, &mut acc, &mut dz, &mut dh, dxb);
+                    let rows = BlockRows { r0, m };
+                    self.block_backward(&run, rows, &mut acc, &mut scratch, dxb);
                 }
                 acc
             })
@@ -317,20 +376,19 @@ impl HostMlp {
     }
 
     /// One block's backward, layers in reverse: dW_i += inputs(i)ᵀ·dz_i, db_i += Σ_rows dz_i,
-    /// d inputs(i) = dz_i·W_iᵀ, and dz_{i−1} = d h_{i−1} ⊙ [h_{i−1} > 0].
-    #[allow(clippy::too_many_arguments)]
+    /// d inputs(i) = dz_i·W_iᵀ, and dz_{i−1} = d h_{i−1} ⊙ [h_{i−1} > 0]. `dx`, when given,
+    /// points at the block's first row of d loss / d x.
     fn block_backward(
         &self,
-        x: &[f32],
-        tape: &Tape,
-        d_out: &[f32],
-        r0: usize,
-        m: usize,
+        run: &BackwardRun,
+        rows: BlockRows,
         acc: &mut MlpGrads,
-        dz: &mut [f32],
-        dh: &mut [f32],
+        scratch: &mut BlockScratch,
         dx: Option<*mut f32>,
     ) {
+        let BackwardRun { x, tape, d_out } = *run;
+        let BlockRows { r0, m } = rows;
+        let BlockScratch { dz, dh } = scratch;
         let din = self.input();
         let last = self.layers.len() - 1;
         let out = self.output();
@@ -363,22 +421,43 @@ impl HostMlp {
                 // from the inputs they are computed from.
                 unsafe {
                     let w_rows = w.add(row * o);
+                    let dz_mat = MatRef {
+                        ptr: dzp,
+                        row_stride: o,
+                        col_stride: 1,
+                    };
                     mm(
-                        (width, o, m),
-                        dw.add(row * o),
-                        o,
-                        true,
-                        (a, 1, width),
-                        (dzp, o, 1),
+                        Shape {
+                            m: width,
+                            n: o,
+                            k: m,
+                        },
+                        MatDst {
+                            ptr: dw.add(row * o),
+                            row_stride: o,
+                            accumulate: true,
+                        },
+                        MatRef {
+                            ptr: a,
+                            row_stride: 1,
+                            col_stride: width,
+                        },
+                        dz_mat,
                     );
                     if let Some(d) = d_part {
                         mm(
-                            (m, width, o),
-                            d,
-                            width,
-                            accumulate,
-                            (dzp, o, 1),
-                            (w_rows, 1, o),
+                            Shape { m, n: width, k: o },
+                            MatDst {
+                                ptr: d,
+                                row_stride: width,
+                                accumulate,
+                            },
+                            dz_mat,
+                            MatRef {
+                                ptr: w_rows,
+                                row_stride: 1,
+                                col_stride: o,
+                            },
                         );
                     }
                 }

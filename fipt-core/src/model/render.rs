@@ -4,8 +4,8 @@
 //!
 //! Owns: shading interpolation and compositing. Must not touch: how shadings are made.
 
-use crate::brdf::{ROUGHNESS_LEVELS, SIGMA_MIN};
-use crate::shading::ShadingLayout as S;
+use crate::brdf::SIGMA_MIN;
+use crate::shading::{ROUGHNESS_LEVELS, ShadingLayout as S};
 use burn::tensor::activation::relu;
 use burn::tensor::{Tensor, TensorData};
 

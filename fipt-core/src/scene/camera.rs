@@ -21,6 +21,15 @@ pub struct Camera {
     pub height: usize,
 }
 
+/// Pinhole intrinsics in pixels: focal lengths (fx, fy) and principal point (cx, cy).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
 impl Camera {
     /// FIPT synthetic convention (`transforms.json`, Mitsuba `look_at`): c2w columns are
     /// (left, up, forward, position), f = W / (2 tan(fov_x / 2)), principal point at the centre.
@@ -41,16 +50,8 @@ impl Camera {
     }
 
     /// nerfstudio / OpenGL convention: c2w columns are (right, up, back, position).
-    #[allow(clippy::too_many_arguments)]
-    pub fn from_opengl_c2w(
-        c2w: [[f64; 4]; 4],
-        fx: f64,
-        fy: f64,
-        cx: f64,
-        cy: f64,
-        width: usize,
-        height: usize,
-    ) -> Self {
+    pub fn from_opengl_c2w(c2w: [[f64; 4]; 4], k: Intrinsics, width: usize, height: usize) -> Self {
+        let Intrinsics { fx, fy, cx, cy } = k;
         let col = |j: usize| DVec3::new(c2w[0][j], c2w[1][j], c2w[2][j]);
         let (right, up, back) = (col(0), col(1), col(2));
         Self {
@@ -87,6 +88,16 @@ impl Camera {
             cy: k[1][2],
             width,
             height,
+        }
+    }
+
+    /// The camera's intrinsics.
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics {
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
         }
     }
 
@@ -229,7 +240,7 @@ mod tests {
             gl[2][j] = v.z;
         }
         gl[3][3] = 1.0;
-        let b = Camera::from_opengl_c2w(gl, cam.fx, cam.fy, cam.cx, cam.cy, 64, 48);
+        let b = Camera::from_opengl_c2w(gl, cam.intrinsics(), 64, 48);
         for (row, col) in [(0, 0), (47, 63), (20, 31), (5, 60)] {
             let d = cam.pixel_direction(row, col);
             assert!((a.pixel_direction(row, col) - d).length() < 1e-6);

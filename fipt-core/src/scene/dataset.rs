@@ -4,7 +4,7 @@
 //! Owns: folder layouts, file naming, cross-file validation (sizes, counts). Must not touch: ray
 //! tracing, training.
 
-use super::{Camera, Image, Mesh, meta::SceneMeta};
+use super::{Camera, Image, Intrinsics, Mesh, meta::SceneMeta};
 use crate::io::{FileError, Result, read_text};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -658,7 +658,12 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
                     FileError::new(&tpath, format!("frame {k}: missing or non-numeric '{key}'"))
                 })
             };
-            let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
+            let k_px = Intrinsics {
+                fx: need("fl_x")?,
+                fy: need("fl_y")?,
+                cx: need("cx")?,
+                cy: need("cy")?,
+            };
             let (w, h) = (need("w")? as usize, need("h")? as usize);
             let fp = f
                 .get("file_path")
@@ -683,7 +688,7 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
             }
             Ok(View {
                 index: k,
-                camera: Camera::from_opengl_c2w(m, fx, fy, cx, cy, w, h),
+                camera: Camera::from_opengl_c2w(m, k_px, w, h),
                 image,
                 maps,
             })
@@ -749,8 +754,13 @@ pub fn load_cameras(path: &Path, size: (usize, usize)) -> Result<Vec<Camera>> {
                     FileError::new(path, format!("frame {k}: missing or non-numeric '{key}'"))
                 })
             };
-            let (fx, fy, cx, cy) = (need("fl_x")?, need("fl_y")?, need("cx")?, need("cy")?);
-            Ok(Camera::from_opengl_c2w(m, fx, fy, cx, cy, w, h))
+            let k_px = Intrinsics {
+                fx: need("fl_x")?,
+                fy: need("fl_y")?,
+                cx: need("cx")?,
+                cy: need("cy")?,
+            };
+            Ok(Camera::from_opengl_c2w(m, k_px, w, h))
         })
         .collect()
 }

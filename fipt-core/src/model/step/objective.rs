@@ -1,0 +1,118 @@
+//! The training objective (paper Eq. 15–20) on a step's network outputs: the factorised
+//! render composited with the emission mask against the photo, the emission and diffuse priors
+//! (with the logit bound and the σ pull where set) and the segmentation loss.
+//!
+//! Owns: which losses a step adds up, and their order. Must not touch: where the network
+//! outputs come from (`paths`), the optimisers.
+
+use super::batch::{Pixels, compact_ids};
+use super::config::SegMode;
+use super::copies::{download, upload2};
+use super::trainer::Trainer;
+use crate::model::brdf::reflectances;
+use crate::model::fields::{alpha_from_raw, decode_material, sigma_metallic_logits};
+use crate::model::loss;
+use crate::model::render::{Shadings, composite, render};
+use crate::model::transfer;
+use crate::rng::Rng;
+use burn::tensor::Tensor;
+
+impl Trainer {
+    /// The loss of the networks' raw outputs `raw_mat` (material) and `raw` (emission mask) on
+    /// the step's pixels: the total, and the parts `[total, color, emission, diffuse, seg]`
+    /// detached.
+    pub(super) fn objective(
+        &mut self,
+        px: &Pixels,
+        mode: SegMode,
+        raw_mat: Tensor<2>,
+        raw: Tensor<2>,
+    ) -> (Tensor<1>, Tensor<1>) {
+        let dev = self.device.clone();
+        let n = px.t.len();
+        let mat = decode_material(raw_mat.clone());
+        let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
+        let sh = Shadings::from_packed(px.t.shadings.clone());
+        let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
+        let alpha = alpha_from_raw(raw.clone());
+        let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
+        let le = loss::emission_loss(raw, self.cfg.lambda_e);
+        let mut ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
+        if let Some(z_max) = self.cfg.logit_bound {
+            // Reported with the prior it bounds (the loss parts keep their five slots).
+            let z = sigma_metallic_logits(raw_mat);
+            ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
+        }
+        if let Some(pull) = &self.pull {
+            let b = px
+                .host
+                .expect("the σ pull needs the batch on the host (StepInput::Device { host })");
+            let (t, w): (Vec<f32>, Vec<f32>) = b
+                .seg
+                .iter()
+                .map(|s| pull.target.get(s).map_or((0.0, 0.0), |&t| (t, 1.0)))
+                .unzip();
+            let (t, w) = (upload2(t, [n, 1], &dev), upload2(w, [n, 1], &dev));
+            ld = ld + loss::sigma_pull_loss(mat.sigma.clone(), t, w, pull.weight);
+        }
+        let lseg = self.seg_loss(px, mode, &mat, spec);
+        let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();
+        let parts = Tensor::cat(vec![total.clone(), lc, le, ld, lseg], 0).detach();
+        (total, parts)
+    }
+
+    fn seg_loss(
+        &mut self,
+        px: &Pixels,
+        mode: SegMode,
+        mat: &crate::model::fields::Material,
+        spec: Tensor<2>,
+    ) -> Tensor<1> {
+        let dev = self.device.clone();
+        match mode {
+            SegMode::None => Tensor::<1>::zeros([1], &dev),
+            SegMode::Part => loss::part_loss(
+                mat.sigma.clone(),
+                mat.metallic.clone(),
+                spec,
+                px.t.seg.clone(),
+                px.t.n_seg,
+                self.cfg.lambda_part,
+            ),
+            SegMode::Semantic => {
+                // Partner draws and bilateral weights on the host: the batch's labels and
+                // positions come from the host batch, the base colour is read back.
+                let b = px.host.expect(
+                    "the semantic loss needs the batch on the host (StepInput::Device { host })",
+                );
+                let (compact, n_labels) = compact_ids(&b.seg);
+                let labels: Vec<i32> = compact.iter().map(|&k| k as i32).collect();
+                let pairs = loss::semantic_pairs(
+                    &labels,
+                    self.cfg.sem_partners,
+                    &mut Rng::new(self.seed ^ 0x5e9, self.steps),
+                );
+                let pos: Vec<f32> = b.x_unit.iter().flatten().map(|v| 2.0 * v - 1.0).collect();
+                let a = download(mat.a.clone());
+                let w = loss::semantic_weights(
+                    &pairs,
+                    &a,
+                    &pos,
+                    self.cfg.sem_sigma_a,
+                    self.cfg.sem_sigma_p,
+                );
+                // The partner indices are counted where they are uploaded (`index_tensor`).
+                transfer::upload(w.len() * 4);
+                loss::semantic_loss(
+                    mat.sigma.clone(),
+                    mat.metallic.clone(),
+                    &pairs,
+                    &w,
+                    &compact,
+                    n_labels,
+                    self.cfg.lambda_sem,
+                )
+            }
+        }
+    }
+}
