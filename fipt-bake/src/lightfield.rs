@@ -8,10 +8,9 @@
 //! surfaces (a room corner, a lamp panel on a ceiling, the front and the unseen back of a thin
 //! emitter) no longer blends them: a query from a hit on one side reads that side's pixels. A
 //! side nobody photographed falls back to the sides facing the same half-space (a curved
-//! surface crossing a side boundary), never to the opposite side; with none, it is 0. On
-//! fipt-room this removes a 2× too bright ring of L_d around the ceiling light and the lines
-//! along the room's edges: the GT-material render gains 0.4 dB overall, 3–4 dB on the views of
-//! the ceiling light.
+//! surface crossing a side boundary), never to the opposite side; with none, it is 0. This
+//! keeps L_d from bleeding across room edges and around emitters (`docs/departures/
+//! lightfield.md`).
 //!
 //! A second refinement: sampling holes are filled. At the reference's 256³ the voxels are about
 //! as large as a pixel's footprint, so on a low-resolution capture many voxels of photographed

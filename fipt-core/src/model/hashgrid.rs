@@ -36,9 +36,8 @@ pub struct HashGridConfig {
     /// Finest grid resolution (cells per unit-cube side) kept: levels finer than this are
     /// dropped by `levels_for`. `"none"` (the reference) keeps all. `"auto"` puts it at one cell
     /// per median pixel footprint: finer levels see at most one pixel per cell, so base colour
-    /// there can absorb each pixel's residual. On fipt-room `"auto"` helped while L′ had
-    /// sampling holes (darker shadings, blotchy k_d); with the holes filled it only costs
-    /// texture detail: k_d 24.2 dB against 27.1 dB with `"none"` (reference schedule, seed 0).
+    /// there can absorb each pixel's residual. What it measures: `docs/departures/
+    /// grid-max-resolution.md`.
     pub max_resolution: MaxResolution,
     /// Entries start uniform in [-init, init] (tiny-cuda-nn: 1e-4); not a config-file key.
     #[serde(skip, default = "default_init")]
