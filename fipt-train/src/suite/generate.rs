@@ -73,8 +73,8 @@ pub fn room(seed: u64, size: SceneSize) -> Desc {
     parts.extend(furniture(r, w, d));
     parts.extend(emitters(r, w, h, d));
     let (resolution, train_views, val_views, spp) = match size {
-        SceneSize::Full => ([160, 120], 30 + r.below(31) as usize, 8, 96),
-        SceneSize::Small => ([96, 72], 16, 4, 48),
+        SceneSize::Full => ([160, 120], 30 + r.below(31) as usize, 8, 256),
+        SceneSize::Small => ([96, 72], 16, 4, 128),
     };
     Desc {
         name: format!("suite-{seed:03}"),
