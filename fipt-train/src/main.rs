@@ -167,8 +167,8 @@ enum Cmd {
         #[arg(long, default_value_t = 0)]
         first_seed: u64,
         /// Scene size: full (160x120, 30-60 views) or small (96x72, 16 views).
-        #[arg(long, default_value = "full")]
-        size: String,
+        #[arg(long, value_enum, default_value_t = fipt_train::suite::SceneSize::Full)]
+        size: fipt_train::suite::SceneSize,
         /// Config file (JSON); defaults to `configs/default.json`'s values.
         #[arg(long)]
         config: Option<PathBuf>,
@@ -516,11 +516,6 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             config,
             json,
         } => {
-            let size = match size.as_str() {
-                "full" => fipt_train::suite::SceneSize::Full,
-                "small" => fipt_train::suite::SceneSize::Small,
-                s => anyhow::bail!("--size {s}: expected full or small"),
-            };
             let config = match &config {
                 Some(p) => fipt_train::config::Config::load(p)?,
                 None => fipt_train::config::Config::default(),

@@ -11,7 +11,9 @@ use fipt_core::rng::Rng;
 use fipt_core::scene::meta::{NewEmitter, Relight};
 
 /// How large a suite scene is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum SceneSize {
     /// 160×120, 30–60 train views, 8 val views.
