@@ -46,6 +46,10 @@ pub struct Desc {
     pub max_depth: usize,
     pub albedo_samples: usize,
     pub seed: u64,
+    /// The first train views each look at one emitter part, so every emitter is photographed
+    /// (as a capture of a room would); the others look at random surface points.
+    #[serde(default)]
+    pub emitter_views: bool,
     pub parts: Vec<PartDesc>,
     pub relight: Relight,
 }
@@ -154,6 +158,14 @@ fn cameras(d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]], n: usize, stream: u64) 
         mesh.point_at(t, r.next_f32(), r.next_f32())
     };
     let accel = Accel::build(mesh);
+    let emitter_ranges: Vec<[usize; 2]> = if d.emitter_views && stream == 1 {
+        (d.parts.iter().zip(ranges))
+            .filter(|(p, _)| p.emission.is_some())
+            .map(|(_, r)| *r)
+            .collect()
+    } else {
+        Vec::new()
+    };
     let mut out = Vec::with_capacity(n);
     while out.len() < n {
         let u = |r: &mut Rng, a: f32, b: f32| a + (b - a) * r.next_f32();
@@ -162,7 +174,9 @@ fn cameras(d: &Desc, mesh: &Mesh, ranges: &[[usize; 2]], n: usize, stream: u64) 
             u(&mut rng, 0.95, (hi.y - 0.6).max(1.0)),
             u(&mut rng, lo.z + 0.4, hi.z - 0.4),
         );
-        let range = if rng.next_f32() < 0.5 {
+        let range = if let Some(&r) = emitter_ranges.get(out.len()) {
+            r
+        } else if rng.next_f32() < 0.5 {
             [0, mesh.num_triangles()]
         } else {
             ranges[(rng.next_f32() * ranges.len() as f32) as usize % ranges.len()]

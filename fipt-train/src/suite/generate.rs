@@ -72,8 +72,9 @@ pub fn room(seed: u64, size: SceneSize) -> Desc {
     let r = &mut Rng::new(seed, 0x5017e);
     let (w, h, d) = (uni(r, 3.5, 6.0), uni(r, 2.4, 3.0), uni(r, 3.0, 5.0));
     let mut parts = shell(r, w, h, d);
-    parts.extend(furniture(r, w, d));
-    parts.extend(emitters(r, w, h, d));
+    let (furniture, counter_top) = furniture(r, w, d);
+    parts.extend(furniture);
+    parts.extend(emitters(r, [w, h, d], counter_top));
     let (resolution, train_views, val_views, spp) = match size {
         SceneSize::Full => ([160, 120], 30 + r.below(31) as usize, 8, 256),
         SceneSize::Small => ([96, 72], 16, 4, 128),
@@ -91,6 +92,7 @@ pub fn room(seed: u64, size: SceneSize) -> Desc {
         max_depth: 7,
         albedo_samples: 64,
         seed,
+        emitter_views: true,
         parts,
         relight: relight(w, h, d),
     }
@@ -178,8 +180,9 @@ fn textured(r: &mut Rng, extent: [f32; 2], sigma: (f32, f32)) -> MatDesc {
 }
 
 /// A table with thin metal legs, a counter (often near-black and glossy) against the x = w wall,
-/// a wall mirror on the x = 0 wall, a metal sphere and a glossy cube on the floor.
-fn furniture(r: &mut Rng, w: f32, d: f32) -> Vec<PartDesc> {
+/// a wall mirror on the x = 0 wall, a metal sphere and a glossy cube on the floor; and the
+/// counter's top (x0, z0, x1, z1, y).
+fn furniture(r: &mut Rng, w: f32, d: f32) -> (Vec<PartDesc>, [f32; 5]) {
     let mut parts = Vec::new();
     // The table.
     let (cx, cz) = (uni(r, 0.4, 0.55) * w, uni(r, 0.4, 0.55) * d);
@@ -224,6 +227,7 @@ fn furniture(r: &mut Rng, w: f32, d: f32) -> Vec<PartDesc> {
         vec![cuboid([w - 0.6, 0.0, z0], [w - 0.02, ch, z0 + len], 3)],
         counter,
     ));
+    let counter_top = [w - 0.6, z0, w - 0.02, z0 + len, ch];
     // A wall mirror on the x = 0 wall, in the half z < d/2.
     if r.below(4) != 0 {
         let (mz, my) = (uni(r, 0.1, 0.3) * d, uni(r, 0.9, 1.2));
@@ -260,12 +264,12 @@ fn furniture(r: &mut Rng, w: f32, d: f32) -> Vec<PartDesc> {
         vec![cuboid([bx, 0.0, bz], [bx + bs, bs, bz + bs], 2)],
         mat(colour(r, 0.05, 0.8), uni(r, 0.1, 0.5), 0.0),
     ));
-    parts
+    (parts, counter_top)
 }
 
-/// A ceiling panel always, then one to three of: a small lamp, a bright window-sized area
-/// light on the z = d wall, a coloured wall strip on the z = 0 wall.
-fn emitters(r: &mut Rng, w: f32, h: f32, d: f32) -> Vec<PartDesc> {
+/// A ceiling panel always, then one to three of: a small lamp on the counter top, a bright
+/// window-sized area light on the z = d wall, a coloured wall strip on the z = 0 wall.
+fn emitters(r: &mut Rng, [w, h, d]: [f32; 3], counter_top: [f32; 5]) -> Vec<PartDesc> {
     let (pw, pd) = (uni(r, 0.6, 1.2), uni(r, 0.4, 0.8));
     let (px, pz) = (uni(r, 0.3, 0.6) * w, uni(r, 0.3, 0.6) * d);
     let e = uni(r, 5.0, 12.0);
@@ -285,11 +289,12 @@ fn emitters(r: &mut Rng, w: f32, h: f32, d: f32) -> Vec<PartDesc> {
     for &k in kinds.iter().take(extra as usize) {
         parts.push(match k {
             0 => {
-                let (lx, lz) = (uni(r, 0.1, 0.3) * w, uni(r, 0.4, 0.6) * d);
-                let s = uni(r, 0.1, 0.18);
+                let [x0, z0, x1, z1, y] = counter_top;
+                let s = uni(r, 0.12, 0.2);
+                let (lx, lz) = (uni(r, x0, x1 - s), uni(r, z0, z1 - s));
                 emitter(
                     "lamp",
-                    vec![cuboid([lx, 0.0, lz], [lx + s, s, lz + s], 1)],
+                    vec![cuboid([lx, y, lz], [lx + s, y + s, lz + s], 1)],
                     [24.0, 16.0, 8.0].map(|c| c * uni(r, 0.6, 1.2)),
                 )
             }
