@@ -18,7 +18,7 @@ use anyhow::Result;
 use fipt_bake::integrators::path::PathConfig;
 use fipt_bake::{ViewHits, emitters};
 use fipt_core::io::peak_rss_mb;
-use fipt_core::scene::{Dataset, MapKind};
+use fipt_core::scene::{Dataset, Image, MapKind, View};
 use std::path::Path;
 
 /// The maps of every view of every split, predicted with the last fit into a staged folder that
@@ -144,12 +144,14 @@ fn render_val_views(ctx: &RunContext, rec: &Recovered) -> Result<Option<ValRende
     let quiet = !ctx.progress();
     staged_dir(&ctx.out.join("render"), |staged| {
         let dir = staged.join("val");
-        let cams: Vec<CamRef> = val
-            .views
-            .iter()
-            .enumerate()
-            .map(|(k, v)| (k, v.camera.clone(), Some(&v.image)))
-            .collect();
+        // Every val camera with its reference: the photo, or the relit photo.
+        let cams_with = |reference: &dyn Fn(&View) -> Option<&Image>| -> Vec<CamRef> {
+            let views = val.views.iter().enumerate();
+            views
+                .map(|(k, v)| (k, v.camera.clone(), reference(v)))
+                .collect()
+        };
+        let cams = cams_with(&|v| Some(&v.image));
         let picked: Vec<&CamRef> = cams.iter().collect();
         let none = Edits::default();
         let view =
@@ -157,12 +159,7 @@ fn render_val_views(ctx: &RunContext, rec: &Recovered) -> Result<Option<ValRende
         let relight_path = ctx.scene.join("relight.json");
         let relight = if relight_path.is_file() && val.has_map(MapKind::Relight) {
             let r = fipt_core::scene::meta::Relight::load(&relight_path, ctx.ds.meta.as_ref())?;
-            let cams: Vec<CamRef> = val
-                .views
-                .iter()
-                .enumerate()
-                .map(|(k, v)| (k, v.camera.clone(), v.map(MapKind::Relight)))
-                .collect();
+            let cams = cams_with(&|v| v.map(MapKind::Relight));
             let picked: Vec<&CamRef> = cams.iter().collect();
             let edits = Edits {
                 relight: Some(&r),

@@ -32,8 +32,21 @@ pub struct PartScore {
     pub m_est: f64,
     pub glossy: bool,
     pub metal: bool,
-    /// Glossy and within `SIGMA_TOLERANCE`, or a metal fitted as one.
+    /// Every property it has recovered: a glossy part's σ (`sigma_recovered`) and a metal's m
+    /// (`metal_recovered`).
     pub recovered: bool,
+}
+
+impl PartScore {
+    /// A glossy part whose fitted σ is within `SIGMA_TOLERANCE` of the truth.
+    pub fn sigma_recovered(&self) -> bool {
+        self.glossy && (self.sigma_est - self.sigma_true).abs() <= SIGMA_TOLERANCE
+    }
+
+    /// A metal fitted as one (m ≥ `METAL`).
+    pub fn metal_recovered(&self) -> bool {
+        self.metal && self.m_est >= METAL
+    }
 }
 
 /// One scene's figures.
@@ -69,20 +82,20 @@ impl SceneRow {
             .flatten()
             .filter(|p| p.pixels > 0)
             .map(|p| {
-                let glossy = p.sigma_true <= GLOSSY_SIGMA;
-                let metal = p.m_true >= METAL;
-                let sigma_ok = (p.sigma_est - p.sigma_true).abs() <= SIGMA_TOLERANCE;
-                PartScore {
+                let mut s = PartScore {
                     name: p.name.clone(),
                     pixels: p.pixels,
                     sigma_true: p.sigma_true,
                     sigma_est: p.sigma_est,
                     m_true: p.m_true,
                     m_est: p.m_est,
-                    glossy,
-                    metal,
-                    recovered: (!glossy || sigma_ok) && (!metal || p.m_est >= METAL),
-                }
+                    glossy: p.sigma_true <= GLOSSY_SIGMA,
+                    metal: p.m_true >= METAL,
+                    recovered: false,
+                };
+                s.recovered =
+                    (!s.glossy || s.sigma_recovered()) && (!s.metal || s.metal_recovered());
+                s
             })
             .collect();
         let m = &r.metrics;
@@ -176,11 +189,9 @@ impl HalfSummary {
             view_psnr: f(|r| r.view_psnr, false),
             relight_psnr: f(|r| r.relight_psnr, false),
             glossy_parts: parts().filter(|p| p.glossy).count(),
-            glossy_recovered: parts()
-                .filter(|p| p.glossy && (p.sigma_est - p.sigma_true).abs() <= SIGMA_TOLERANCE)
-                .count(),
+            glossy_recovered: parts().filter(|p| p.sigma_recovered()).count(),
             metals: parts().filter(|p| p.metal).count(),
-            metals_recovered: parts().filter(|p| p.metal && p.m_est >= METAL).count(),
+            metals_recovered: parts().filter(|p| p.metal_recovered()).count(),
             kd_below_round0: rows
                 .iter()
                 .filter(|r| matches!((r.kd_psnr, r.round0_kd_psnr), (Some(k), Some(k0)) if k < k0))
