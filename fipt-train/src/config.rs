@@ -425,6 +425,12 @@ pub struct HopConfig {
     /// Share of the fit's final λ_d that the check and the decision hold (1: the fit's own
     /// objective, Eq. 15 + 17; 0: the data term alone, Eq. 15).
     pub prior: f32,
+    /// Also try each non-metallic segment as a metal (m = 1, one base colour per segment,
+    /// swept over σ), and pull m with σ when that hypothesis wins.
+    pub metal: bool,
+    /// Also score the last round's material on each segment under this round's shadings, and
+    /// hop back to it where it explains the photos better (rounds after 0).
+    pub carry: bool,
 }
 
 impl Default for HopConfig {
@@ -436,6 +442,8 @@ impl Default for HopConfig {
             pull: 1e-2,
             pixels: 4096,
             prior: 0.0,
+            metal: true,
+            carry: true,
         }
     }
 }

@@ -442,13 +442,18 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
                     .filter(|_| run.seg_loss == SegMode::Part)
                     .and_then(|m| m.parts.iter().find(|p| p.id as i64 == i64::from(c.segment)))
                     .map_or_else(|| format!("segment {}", c.segment), |p| p.name.clone());
+                let m = |v: f64| format!(", m {v:.2}");
                 format!(
-                    "<tr><td>{round}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:+.0} %</td><td>{}</td></tr>",
+                    "<tr><td>{round}</td><td>{}</td><td>{}</td><td>{:?}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:+.0} %</td><td>{}</td></tr>",
                     esc(&name),
                     c.pixels,
+                    c.source,
                     c.sigma,
+                    m(c.metallic),
                     c.target,
+                    c.target_metallic.map(m).unwrap_or_default(),
                     c.sigma_after,
+                    m(c.metallic_after),
                     100.0 * (c.objective_after / c.objective - 1.0),
                     if hop.accepted { "kept" } else { "undone" }
                 )
@@ -458,7 +463,7 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
     if rows.is_empty() {
         return;
     }
-    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower at a σ far from the fitted one are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>σ fitted</th><th>target</th><th>σ after</th><th>objective</th><th></th></tr>");
+    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, or at the last round's material) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
     for r in rows {
         h.push_str(&r);
     }

@@ -61,7 +61,7 @@ pub fn logit_bound_loss(z: Tensor<2>, z_max: f32, weight: f32) -> Tensor<1> {
         .mul_scalar(weight)
 }
 
-/// The σ pull of a basin hop (a departure from the reference, `train.hop`):
+/// The pull of a basin hop on σ or m (a departure from the reference, `train.hop`):
 /// λ · mean_pixels w·(σ − t)², with a target t and a weight w ∈ {0, 1} per pixel [N,1].
 pub fn sigma_pull_loss(
     sigma: Tensor<2>,

@@ -52,6 +52,16 @@ pub struct HopCandidate {
     pub sigma: f64,
     pub target: f64,
     pub sigma_after: f64,
+    /// Which hypothesis proposed the target (`Hypothesis`).
+    #[serde(default)]
+    pub source: Hypothesis,
+    /// Mean fitted m before the hop, its target (None: m is not pulled) and after it.
+    #[serde(default)]
+    pub metallic: f64,
+    #[serde(default)]
+    pub target_metallic: Option<f64>,
+    #[serde(default)]
+    pub metallic_after: f64,
     /// The segment's objective at the fit, at the target σ (fitted a and m) and after the hop.
     pub objective: f64,
     pub objective_target: f64,
@@ -69,6 +79,29 @@ pub struct SegmentObjective {
     pub best_sigma: f64,
     pub best: f64,
     pub after: Option<f64>,
+    /// Mean fitted m.
+    #[serde(default)]
+    pub metallic: f64,
+    /// The metal hypothesis's best σ and objective (`train.hop.metal`; None: not tried).
+    #[serde(default)]
+    pub metal: Option<(f64, f64)>,
+    /// The last round's material on this segment under these shadings: its mean σ and m, and
+    /// its objective (`train.hop.carry`; None: round 0, or off).
+    #[serde(default)]
+    pub carried: Option<(f64, f64, f64)>,
+}
+
+/// What proposed a hop's target.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Hypothesis {
+    /// The sweep over σ at the fitted base colour (scaled) and metallic.
+    #[default]
+    Sweep,
+    /// The sweep over σ of a metal (m = 1) with one base colour per segment.
+    Metal,
+    /// The last round's material (σ and m) on the segment.
+    Carried,
 }
 
 /// What a hop did: the candidates, whether the hopped model was kept (the candidates'
@@ -119,12 +152,17 @@ fn sample(store: &PixelStore, per: usize) -> Vec<SegmentSample> {
         .collect()
 }
 
-/// A segment's objective at the model, and over the sweep.
+/// A segment's objective at the model, and over the hypotheses.
 struct SegmentEval {
     sigma: f64,
+    metallic: f64,
     own: f64,
     /// At each swept σ, the least objective over the base-colour scales (`SCALES`).
     sweep: Vec<f64>,
+    /// At each swept σ, the least objective of a metal over the scales of its colour.
+    metal: Vec<f64>,
+    /// The carried material's mean σ, mean m and objective.
+    carried: Option<(f64, f64, f64)>,
 }
 
 /// Scales of the fitted base colour tried at each swept σ: 0.5, 0.55, …, 1.5. A part fitted in
@@ -137,18 +175,75 @@ fn scale(j: usize) -> f32 {
     0.5 + j as f32 / (SCALES - 1) as f32
 }
 
-/// Eq. 15 + 17 per segment of `samples` at the model's a, σ, m and α, and (`with_sweep`) its
-/// profile over σ: at each swept σ, the least over the scales of the fitted base colour.
+/// What `evaluate` scores besides the model itself.
+#[derive(Clone, Copy, Default)]
+struct Hypotheses<'a> {
+    /// The σ sweep at the fitted base colour (scaled) and metallic.
+    sweep: bool,
+    /// The σ sweep of a metal with one base colour per segment.
+    metal: bool,
+    /// The last round's model, whose material is scored under these shadings.
+    carried: Option<&'a FiptModel>,
+}
+
+/// One pixel's objective (Eq. 15 + λ_d·Eq. 17's summand) at base colour `a`, roughness `sigma`
+/// and metallic `m`, for emission mask `alpha`, packed shadings `sh` and photo `gt`.
+fn pixel_objective(
+    (a, sigma, m): (glam::Vec3, f32, f32),
+    alpha: f32,
+    sh: &[f32],
+    gt: &[f32],
+    lambda_d: f32,
+) -> f64 {
+    let (kd, ks) = reflectances(a, m);
+    let c = factorised_render(kd.to_array(), ks.to_array(), sigma, sh);
+    let data = (0..3)
+        .map(|k| (tonemap((1.0 - alpha) * c[k] + alpha * gt[k]) - tonemap(gt[k])).powi(2))
+        .sum::<f64>()
+        / 3.0;
+    data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
+}
+
+/// The base colour of a metal (m = 1, so the render is a·L_s0(σ) + L_s1(σ)) at roughness
+/// `sigma` that best fits the photos of a segment's pixels in the linear least-squares sense,
+/// each pixel weighted by its share (1 − α)² of the composite; clamped to [0, 1].
+fn metal_colour(b: &fipt_core::model::step::Batch, alpha: &[f32], sigma: f32) -> glam::Vec3 {
+    let w = fipt_core::brdf::level_weights(sigma);
+    let (mut num, mut den) = ([0.0f64; 3], [0.0f64; 3]);
+    for (i, al) in alpha.iter().enumerate() {
+        let sh = ShadingLayout::pixel(&b.shadings, i);
+        let wt = ((1.0 - al) * (1.0 - al)) as f64;
+        for c in 0..3 {
+            let (mut s0, mut s1) = (0.0f32, 0.0f32);
+            for (j, wj) in w.iter().enumerate() {
+                s0 += wj * sh[ShadingLayout::ls0(j).start + c];
+                s1 += wj * sh[ShadingLayout::ls1(j).start + c];
+            }
+            num[c] += wt * (s0 * (b.gt[3 * i + c] - s1)) as f64;
+            den[c] += wt * (s0 * s0) as f64;
+        }
+    }
+    glam::Vec3::from_array(std::array::from_fn(|c| {
+        if den[c] > 0.0 {
+            (num[c] / den[c]).clamp(0.0, 1.0) as f32
+        } else {
+            0.0
+        }
+    }))
+}
+
+/// Eq. 15 + 17 per segment of `samples` at the model's a, σ, m and α, and at the hypotheses
+/// asked for: the profile over σ at the fitted (scaled) base colour and metallic, that of a
+/// metal, and the last round's material.
 fn evaluate(
     model: &FiptModel,
     store: &PixelStore,
     samples: &[SegmentSample],
     lambda_d: f32,
-    with_sweep: bool,
+    with: Hypotheses,
 ) -> Vec<SegmentEval> {
     use rayon::prelude::*;
     let sig = sweep();
-    let scales = if with_sweep { SCALES } else { 0 };
     samples
         .iter()
         .map(|s| {
@@ -156,48 +251,68 @@ fn evaluate(
             let mat = model.material(&b.x_unit);
             let alpha = model.alpha(&b.x_world);
             let n = s.idx.len() as f64;
-            // One pixel's objective at base colour a, roughness σ and its own m.
-            let term = |i: usize, a: glam::Vec3, sigma: f32| -> f64 {
-                let m = mat.metallic[i];
-                let (kd, ks) = reflectances(a, m);
+            let term = |i: usize, am: (glam::Vec3, f32, f32)| -> f64 {
                 let sh = ShadingLayout::pixel(&b.shadings, i);
-                let gt = &b.gt[3 * i..3 * i + 3];
-                let al = alpha[i];
-                let c = factorised_render(kd.to_array(), ks.to_array(), sigma, sh);
-                let data = (0..3)
-                    .map(|k| (tonemap((1.0 - al) * c[k] + al * gt[k]) - tonemap(gt[k])).powi(2))
-                    .sum::<f64>()
-                    / 3.0;
-                data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
+                pixel_objective(am, alpha[i], sh, &b.gt[3 * i..3 * i + 3], lambda_d)
             };
             let base = |i: usize| glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
             // Sums over pixels, each in pixel order (so that a run gives the same bits on any
-            // number of threads): σ, the own objective, and per (σ, scale) cell of the sweep in
-            // parallel over the cells.
+            // number of threads), per (σ, scale) cell of a profile in parallel over the cells.
             let pixels = 0..s.idx.len();
-            let sum_sigma: f64 = pixels.clone().map(|i| mat.sigma[i] as f64).sum();
-            let own: f64 = pixels.clone().map(|i| term(i, base(i), mat.sigma[i])).sum();
-            let grid: Vec<f64> = (0..SWEEP * scales)
-                .into_par_iter()
-                .map(|cell| {
-                    let (k, j) = (cell / scales, cell % scales);
-                    pixels
-                        .clone()
-                        .map(|i| term(i, (base(i) * scale(j)).min(glam::Vec3::ONE), sig[k]))
-                        .sum()
-                })
-                .collect();
-            SegmentEval {
-                sigma: sum_sigma / n,
-                own: own / n,
-                sweep: (0..if scales > 0 { SWEEP } else { 0 })
-                    .map(|k| {
-                        grid[k * scales..(k + 1) * scales]
-                            .iter()
-                            .fold(f64::INFINITY, |a, &b| a.min(b))
-                            / n
+            let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / n;
+            let own: f64 = pixels
+                .clone()
+                .map(|i| term(i, (base(i), mat.sigma[i], mat.metallic[i])))
+                .sum();
+            let profile = |colour: &(dyn Fn(usize, usize) -> glam::Vec3 + Sync),
+                           metallic: &(dyn Fn(usize) -> f32 + Sync)| {
+                let grid: Vec<f64> = (0..SWEEP * SCALES)
+                    .into_par_iter()
+                    .map(|cell| {
+                        let (k, j) = (cell / SCALES, cell % SCALES);
+                        pixels
+                            .clone()
+                            .map(|i| {
+                                let a = (colour(k, i) * scale(j)).min(glam::Vec3::ONE);
+                                term(i, (a, sig[k], metallic(i)))
+                            })
+                            .sum()
                     })
-                    .collect(),
+                    .collect();
+                grid.chunks(SCALES)
+                    .map(|c| c.iter().fold(f64::INFINITY, |a, &b| a.min(b)) / n)
+                    .collect::<Vec<f64>>()
+            };
+            let sweep = if with.sweep {
+                profile(&|_, i| base(i), &|i| mat.metallic[i])
+            } else {
+                Vec::new()
+            };
+            let metal = if with.metal {
+                let colours: Vec<glam::Vec3> =
+                    sig.iter().map(|&sg| metal_colour(&b, &alpha, sg)).collect();
+                profile(&|k, _| colours[k], &|_| 1.0)
+            } else {
+                Vec::new()
+            };
+            let carried = with.carried.map(|prev| {
+                let pm = prev.material(&b.x_unit);
+                let obj: f64 = pixels
+                    .clone()
+                    .map(|i| {
+                        let a = glam::Vec3::from_slice(&pm.a[3 * i..3 * i + 3]);
+                        term(i, (a, pm.sigma[i], pm.metallic[i]))
+                    })
+                    .sum();
+                (mean(&pm.sigma), mean(&pm.metallic), obj / n)
+            });
+            SegmentEval {
+                sigma: mean(&mat.sigma),
+                metallic: mean(&mat.metallic),
+                own: own / n,
+                sweep,
+                metal,
+                carried,
             }
         })
         .collect()
@@ -214,53 +329,89 @@ fn whole(samples: &[SegmentSample], evals: &[SegmentEval]) -> f64 {
         / n.max(1) as f64
 }
 
-/// Every segment's check: its mean fitted σ and objective, and the sweep's best σ and
-/// objective (NaN without a sweep).
-fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObjective> {
+/// The least value of a profile over the swept σ and where it lies (NaN without a profile).
+fn profile_min(profile: &[f64]) -> (f64, f64) {
     let sig = sweep();
+    profile
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))
+        .map_or((f64::NAN, f64::NAN), |(j, b)| (sig[j] as f64, *b))
+}
+
+/// Every segment's check: its mean fitted σ, m and objective, and each hypothesis's best
+/// (NaN or None where it was not scored).
+fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObjective> {
     samples
         .iter()
         .zip(evals)
         .map(|(s, e)| {
-            let (j, best) = e
-                .sweep
-                .iter()
-                .enumerate()
-                .min_by(|a, b| a.1.total_cmp(b.1))
-                .map_or((0, f64::NAN), |(j, b)| (j, *b));
+            let (best_sigma, best) = profile_min(&e.sweep);
             SegmentObjective {
                 segment: s.id,
                 pixels: s.size,
                 sigma: e.sigma,
                 before: e.own,
-                best_sigma: sig[j] as f64,
+                best_sigma,
                 best,
                 after: None,
+                metallic: e.metallic,
+                metal: (!e.metal.is_empty()).then(|| profile_min(&e.metal)),
+                carried: e.carried,
             }
         })
         .collect()
 }
 
-/// The segments to hop and their targets: where the sweep's best σ lies at least `min_move`
-/// from the fitted mean and lowers the segment's objective by at least `gain` of it (a
-/// segment already at zero, e.g. all behind the emission mask, has nothing to gain).
+/// The segments to hop and their targets. Each hypothesis proposes a target: the sweep's best σ
+/// (m left free), a metal's best σ with m = 1 (for a segment fitted non-metallic), and the
+/// last round's mean σ and m. One counts where it lowers the segment's objective by at least
+/// `gain` of it and, for the sweep and the metal, lies far from the fit (σ at least `min_move`
+/// away, or m across 0.5; nearer minima are descent's to find). The carried material needs no
+/// distance: it is a whole material that a fit already reached, and a mirror's σ 0.1 against
+/// 0.25 is a lost part. Of those, the lowest objective wins. A segment already at zero (e.g. all behind the emission
+/// mask) has nothing to gain.
 fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
     checks
         .iter()
-        .filter(|c| {
-            (c.best_sigma - c.sigma).abs() >= cfg.min_move as f64
-                && c.before > 0.0
-                && c.before - c.best >= cfg.gain as f64 * c.before
-        })
-        .map(|c| HopCandidate {
-            segment: c.segment,
-            pixels: c.pixels,
-            sigma: c.sigma,
-            target: c.best_sigma,
-            sigma_after: c.sigma,
-            objective: c.before,
-            objective_target: c.best,
-            objective_after: c.before,
+        .filter(|c| c.before > 0.0)
+        .filter_map(|c| {
+            let far = |sigma: f64, m: Option<f64>| {
+                (sigma - c.sigma).abs() >= cfg.min_move as f64
+                    || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
+            };
+            let mut options = vec![(Hypothesis::Sweep, c.best_sigma, None, c.best)];
+            if let Some((sigma, obj)) = c.metal
+                && c.metallic < 0.5
+            {
+                options.push((Hypothesis::Metal, sigma, Some(1.0), obj));
+            }
+            if let Some((sigma, m, obj)) = c.carried {
+                let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
+                options.push((Hypothesis::Carried, sigma, m, obj));
+            }
+            options
+                .into_iter()
+                .filter(|&(source, sigma, m, obj)| {
+                    obj.is_finite()
+                        && (source == Hypothesis::Carried || far(sigma, m))
+                        && c.before - obj >= cfg.gain as f64 * c.before
+                })
+                .min_by(|a, b| a.3.total_cmp(&b.3))
+                .map(|(source, target, target_metallic, obj)| HopCandidate {
+                    segment: c.segment,
+                    pixels: c.pixels,
+                    sigma: c.sigma,
+                    target,
+                    sigma_after: c.sigma,
+                    source,
+                    metallic: c.metallic,
+                    target_metallic,
+                    metallic_after: c.metallic,
+                    objective: c.before,
+                    objective_target: obj,
+                    objective_after: c.before,
+                })
         })
         .collect()
 }
@@ -274,6 +425,8 @@ pub struct HopPlan<'a> {
     pub lambda_d: f32,
     pub seed: u64,
     pub show_progress: bool,
+    /// The last round's model (`train.hop.carry`; None in round 0).
+    pub carried: Option<&'a FiptModel>,
 }
 
 /// Tries a hop after a finished fit on `store`: returns the trainer to keep (the hopped one, or
@@ -291,7 +444,12 @@ pub fn hop(
     }
     let samples = sample(store, plan.cfg.pixels);
     let held = plan.lambda_d * plan.cfg.prior;
-    let before = evaluate(&tr.model, store, &samples, held, true);
+    let with = Hypotheses {
+        sweep: true,
+        metal: plan.cfg.metal,
+        carried: plan.carried.filter(|_| plan.cfg.carry),
+    };
+    let before = evaluate(&tr.model, store, &samples, held, with);
     let segments = checks(&samples, &before);
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
@@ -328,6 +486,11 @@ pub fn hop(
             .iter()
             .map(|c| (c.segment, c.target as f32))
             .collect(),
+        metallic: report
+            .candidates
+            .iter()
+            .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
+            .collect(),
     });
     let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
     let mut idx = Vec::with_capacity(batch);
@@ -355,11 +518,12 @@ pub fn hop(
     tr.pull = None;
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
-    let after = evaluate(&tr.model, store, &samples, held, false);
+    let after = evaluate(&tr.model, store, &samples, held, Hypotheses::default());
     let objective_after = whole(&samples, &after);
     for c in &mut report.candidates {
         if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
             c.sigma_after = after[k].sigma;
+            c.metallic_after = after[k].metallic;
             c.objective_after = after[k].own;
         }
     }
@@ -410,7 +574,16 @@ mod tests {
         let samples = sample(&st, usize::MAX);
         assert_eq!(samples.len(), 1);
         assert_eq!(samples[0].idx.len(), 300);
-        let e = evaluate(&tr.model, &st, &samples, 3e-2, true);
+        let e = evaluate(
+            &tr.model,
+            &st,
+            &samples,
+            3e-2,
+            Hypotheses {
+                sweep: true,
+                ..Default::default()
+            },
+        );
         let all: Vec<u32> = (0..300).collect();
         let parts = tr.gradients(&st.batch(&all), SegMode::None).parts;
         let want = (parts.color + parts.diffuse) as f64;
@@ -422,7 +595,7 @@ mod tests {
         assert_eq!(e[0].sweep.len(), SWEEP);
         assert!(e[0].sigma > 0.02 && e[0].sigma < 1.0);
         // `prior` 0 holds no λ_d: the data term alone, Eq. 15.
-        let data = evaluate(&tr.model, &st, &samples, 0.0, false);
+        let data = evaluate(&tr.model, &st, &samples, 0.0, Hypotheses::default());
         let want = parts.color as f64;
         assert!(
             (data[0].own - want).abs() < 1e-5 * want.abs().max(1e-3),
@@ -435,7 +608,14 @@ mod tests {
     fn eval(sigma: f64, own: f64, best_at: usize, best: f64) -> SegmentEval {
         let mut sweep = vec![own + 1.0; SWEEP];
         sweep[best_at] = best;
-        SegmentEval { sigma, own, sweep }
+        SegmentEval {
+            sigma,
+            metallic: 0.0,
+            own,
+            sweep,
+            metal: Vec::new(),
+            carried: None,
+        }
     }
 
     /// Only a deep minimum far from the fit sends a segment hopping, to the swept σ there.
@@ -472,6 +652,108 @@ mod tests {
         assert!(candidates(&cfg, &checks(&samples[..1], &zero)).is_empty());
     }
 
+    /// A segment rendered as a metal (m = 1) of known colour and roughness: `metal_colour`
+    /// recovers the colour at the true σ, and the metal profile's least objective lies at the
+    /// true σ with (nearly) zero data term, far below the dielectric profile's at the fit.
+    #[test]
+    fn the_metal_hypothesis_finds_a_metal() {
+        let n = 400;
+        let mut st = toy_store(n);
+        st.pixels.seg.iter_mut().for_each(|s| *s = 0);
+        let (a, sigma) = (glam::Vec3::new(0.9, 0.6, 0.3), sweep()[12]);
+        let d = ShadingLayout::DIM;
+        for i in 0..n {
+            // Specular shadings that vary over σ and pixels, so σ is identifiable.
+            for j in 0..fipt_core::brdf::ROUGHNESS_LEVELS {
+                for c in 0..3 {
+                    let v = 0.2 + ((i * 7 + j * 13 + c * 5) % 11) as f32 / 11.0;
+                    st.pixels.shadings[i * d + ShadingLayout::ls0(j).start + c] = v;
+                    st.pixels.shadings[i * d + ShadingLayout::ls1(j).start + c] = 0.05 * v;
+                }
+            }
+            let sh = ShadingLayout::pixel(&st.pixels.shadings, i).to_vec();
+            let c = factorised_render([0.0; 3], a.to_array(), sigma, &sh);
+            st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&c);
+        }
+        let all: Vec<u32> = (0..n as u32).collect();
+        let b = st.batch(&all);
+        let alpha = vec![0.0; n];
+        let fitted = metal_colour(&b, &alpha, sigma);
+        assert!((fitted - a).abs().max_element() < 1e-4, "{fitted} vs {a}");
+        let (cfg, _) = toy_fit();
+        let tr = toy_trainer(cfg);
+        let samples = sample(&st, usize::MAX);
+        let with = Hypotheses {
+            sweep: true,
+            metal: true,
+            carried: None,
+        };
+        let e = evaluate(&tr.model, &st, &samples, 0.0, with).remove(0);
+        let (best_sigma, best) = profile_min(&e.metal);
+        assert_eq!(best_sigma, sigma as f64);
+        let (_, dielectric) = profile_min(&e.sweep);
+        assert!(
+            best < 1e-9 && best < 1e-3 * dielectric.min(e.own),
+            "{best} vs {dielectric}, {}",
+            e.own
+        );
+        // The check proposes the metal for a segment fitted non-metallic, pulling m to 1 with σ.
+        let mut rows = checks(&samples, &[e]);
+        rows[0].metallic = 0.1;
+        let c = candidates(&HopConfig::default(), &rows);
+        assert_eq!(c.len(), 1);
+        assert_eq!(c[0].source, Hypothesis::Metal);
+        assert_eq!(
+            (c[0].target, c[0].target_metallic),
+            (sigma as f64, Some(1.0))
+        );
+    }
+
+    /// The last round's material is scored under this round's shadings: with the same model it
+    /// scores the model's own objective; a carried candidate wins over the sweep only with the
+    /// lower objective, and pulls m only when it lies across 0.5 from the fit.
+    #[test]
+    fn carried_material_is_scored_and_chosen_by_its_objective() {
+        let st = toy_store(300);
+        let (cfg, _) = toy_fit();
+        let tr = toy_trainer(cfg);
+        let samples = sample(&st, 64);
+        let with = Hypotheses {
+            carried: Some(&tr.model),
+            ..Hypotheses::default()
+        };
+        for e in evaluate(&tr.model, &st, &samples, 0.0, with) {
+            let (sigma, m, obj) = e.carried.unwrap();
+            assert_eq!((sigma, m, obj), (e.sigma, e.metallic, e.own));
+        }
+        let sig = sweep();
+        let far = sig.iter().position(|&s| s >= 0.3).unwrap();
+        let row = |carried: (f64, f64, f64)| SegmentObjective {
+            carried: Some(carried),
+            ..checks(&samples[..1], &[eval(0.95, 1.0, far, 0.8)]).remove(0)
+        };
+        let cfg = HopConfig::default();
+        // Lower than the sweep's best, and a metal where the fit is not: pulls σ and m.
+        let c = candidates(&cfg, &[row((0.1, 0.9, 0.5))]);
+        assert_eq!(c[0].source, Hypothesis::Carried);
+        assert_eq!((c[0].target, c[0].target_metallic), (0.1, Some(0.9)));
+        // Higher than the sweep's best: the sweep wins.
+        let c = candidates(&cfg, &[row((0.1, 0.9, 0.9))]);
+        assert_eq!(c[0].source, Hypothesis::Sweep);
+        // Non-metallic like the fit: σ alone is pulled.
+        let c = candidates(&cfg, &[row((0.1, 0.2, 0.5))]);
+        assert_eq!(
+            (c[0].source, c[0].target_metallic),
+            (Hypothesis::Carried, None)
+        );
+        // Near the fit in σ and m, but lower: it still wins (no distance asked of it).
+        let c = candidates(&cfg, &[row((0.9, 0.1, 0.1))]);
+        assert_eq!((c[0].source, c[0].target), (Hypothesis::Carried, 0.9));
+        // Not lower by `gain`: the sweep's target.
+        let c = candidates(&cfg, &[row((0.2, 0.9, 0.97))]);
+        assert_eq!(c[0].source, Hypothesis::Sweep);
+    }
+
     /// The check holds `prior` × the fit's λ_d: with 0 each segment's objective is its data
     /// term, with 1 the data term plus λ_d·mean(|σ − 1| + m).
     #[test]
@@ -502,6 +784,7 @@ mod tests {
                 lambda_d,
                 seed: 5,
                 show_progress: false,
+                carried: None,
             };
             hop(tr.clone(), &st, &plan).unwrap().1
         };
@@ -509,7 +792,7 @@ mod tests {
         assert!(data.candidates.is_empty() && full.candidates.is_empty());
         assert_eq!((data.lambda_d, full.lambda_d), (0.0, lambda_d as f64));
         let samples = sample(&st, 64);
-        let want = evaluate(&tr.model, &st, &samples, 0.0, false);
+        let want = evaluate(&tr.model, &st, &samples, 0.0, Hypotheses::default());
         let mat = |s: &SegmentSample| tr.model.material(&st.batch(&s.idx).x_unit);
         for ((d, f), (s, w)) in data
             .segments
@@ -556,6 +839,7 @@ mod tests {
             pull: 10.0,
             pixels: 64,
             prior: 1.0,
+            ..HopConfig::default()
         };
         let plan = HopPlan {
             cfg: &hc,
@@ -564,6 +848,7 @@ mod tests {
             lambda_d: 5e-4,
             seed: 5,
             show_progress: false,
+            carried: None,
         };
         let (out, rep) = hop(tr, &st, &plan).unwrap();
         assert!(!rep.candidates.is_empty());
@@ -577,7 +862,19 @@ mod tests {
                 c.sigma_after,
                 c.target
             );
+            if let Some(t) = c.target_metallic {
+                assert!(
+                    (c.metallic_after - t).abs() < (c.metallic - t).abs(),
+                    "segment {}: m {} → {} for target {t}",
+                    c.segment,
+                    c.metallic,
+                    c.metallic_after
+                );
+            }
         }
+        // The metal hypothesis proposes at least one segment of this toy store, so the m pull
+        // is exercised too.
+        assert!(rep.candidates.iter().any(|c| c.target_metallic.is_some()));
         assert!(rep.objective_after.is_some());
         assert_eq!(rep.segments.len(), 5);
         assert_eq!(rep.accepted, hop_helped(&rep.candidates, hc.gain));

@@ -258,6 +258,7 @@ impl Rounds {
                         * run.schedule.lambda_d_at(p.total.saturating_sub(1), p.total),
                     seed: ctx.seeds.hop(r),
                     show_progress: ctx.progress(),
+                    carried: self.prev.as_ref().map(|(t, _)| &t.model),
                 };
                 let (tr, rep) = hop::hop(tr, store, &plan).map_err(|e| {
                     ctx.reword(e, &format!("during round {r}'s basin hop (it restarts)"))

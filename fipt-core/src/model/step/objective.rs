@@ -47,13 +47,20 @@ impl Trainer {
             let b = px
                 .host
                 .expect("the σ pull needs the batch on the host (StepInput::Device { host })");
-            let (t, w): (Vec<f32>, Vec<f32>) = b
-                .seg
-                .iter()
-                .map(|s| pull.target.get(s).map_or((0.0, 0.0), |&t| (t, 1.0)))
-                .unzip();
-            let (t, w) = (upload2(t, [n, 1], &dev), upload2(w, [n, 1], &dev));
+            let targets = |of: &std::collections::HashMap<i32, f32>| {
+                let (t, w): (Vec<f32>, Vec<f32>) = b
+                    .seg
+                    .iter()
+                    .map(|s| of.get(s).map_or((0.0, 0.0), |&t| (t, 1.0)))
+                    .unzip();
+                (upload2(t, [n, 1], &dev), upload2(w, [n, 1], &dev))
+            };
+            let (t, w) = targets(&pull.target);
             ld = ld + loss::sigma_pull_loss(mat.sigma.clone(), t, w, pull.weight);
+            if !pull.metallic.is_empty() {
+                let (t, w) = targets(&pull.metallic);
+                ld = ld + loss::sigma_pull_loss(mat.metallic.clone(), t, w, pull.weight);
+            }
         }
         let lseg = self.seg_loss(px, mode, &mat, spec);
         let total = lc.clone() + le.clone() + ld.clone() + lseg.clone();

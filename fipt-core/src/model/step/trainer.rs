@@ -27,14 +27,17 @@ pub(super) enum GridOpt {
     Device { optim: ModuleOptimizer },
 }
 
-/// A pull of the roughness towards per-segment targets, added to the loss while it is set
-/// (`Trainer::pull`): the first phase of a basin hop (`loss::sigma_pull_loss`, reported with
-/// the prior). Segment ids are the batch's own (`Batch::seg`); pixels of other segments are
-/// not pulled.
+/// A pull of the roughness, and where given the metallic, towards per-segment targets, added
+/// to the loss of every step while it is set (`Trainer::pull`): the first phase of a basin hop
+/// (`loss::sigma_pull_loss` on each, reported with the prior). Segment ids are the batch's own
+/// (`Batch::seg`); pixels of other segments are not pulled.
 #[derive(Clone, Debug, Default)]
 pub struct SigmaPull {
     pub weight: f32,
+    /// σ target per segment.
     pub target: HashMap<i32, f32>,
+    /// m target per segment (a segment absent here keeps its m free).
+    pub metallic: HashMap<i32, f32>,
 }
 
 /// The fit: a `FiptModel` on an autodiff device and its optimisers. A clone is an independent
