@@ -82,9 +82,11 @@ pub struct SegmentObjective {
     /// Mean fitted m.
     #[serde(default)]
     pub metallic: f64,
-    /// The metal hypothesis's best σ and objective (`train.hop.metal`; None: not tried).
+    /// The metal hypothesis's best σ and objective, and the objective of one colour per
+    /// segment at the fitted mean σ and m, which it is measured against (`train.hop.metal`;
+    /// None: not tried).
     #[serde(default)]
-    pub metal: Option<(f64, f64)>,
+    pub metal: Option<(f64, f64, f64)>,
     /// The last round's material on this segment under these shadings: its mean σ and m, and
     /// its objective (`train.hop.carry`; None: round 0, or off).
     #[serde(default)]
@@ -161,6 +163,9 @@ struct SegmentEval {
     sweep: Vec<f64>,
     /// At each swept σ, the least objective of a metal over the scales of its colour.
     metal: Vec<f64>,
+    /// The least objective over the scales of one colour per segment at the fitted mean σ and
+    /// m (NaN where the metal was not tried).
+    uniform: f64,
     /// The carried material's mean σ, mean m and objective.
     carried: Option<(f64, f64, f64)>,
 }
@@ -204,10 +209,17 @@ fn pixel_objective(
     data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
 }
 
-/// The base colour of a metal (m = 1, so the render is a·L_s0(σ) + L_s1(σ)) at roughness
-/// `sigma` that best fits the photos of a segment's pixels in the linear least-squares sense,
-/// each pixel weighted by its share (1 − α)² of the composite; clamped to [0, 1].
-fn metal_colour(b: &fipt_core::model::step::Batch, alpha: &[f32], sigma: f32) -> glam::Vec3 {
+/// One base colour for a segment's pixels at roughness `sigma` and metallic `m`: the render
+/// k_d·L_d + k_s·L_s0(σ) + L_s1(σ) is a·P + Q per channel, with P = (1 − m)·L_d + m·L_s0 and
+/// Q = 0.04·(1 − m)·L_s0 + L_s1, and a is its linear least-squares fit to the photos, each pixel
+/// weighted by its share (1 − α)² of the composite; clamped to [0, 1]. With m = 1 it is a
+/// metal's colour, a·L_s0(σ) + L_s1(σ).
+fn uniform_colour(
+    b: &fipt_core::model::step::Batch,
+    alpha: &[f32],
+    sigma: f32,
+    m: f32,
+) -> glam::Vec3 {
     let w = fipt_core::brdf::level_weights(sigma);
     let (mut num, mut den) = ([0.0f64; 3], [0.0f64; 3]);
     for (i, al) in alpha.iter().enumerate() {
@@ -219,8 +231,10 @@ fn metal_colour(b: &fipt_core::model::step::Batch, alpha: &[f32], sigma: f32) ->
                 s0 += wj * sh[ShadingLayout::ls0(j).start + c];
                 s1 += wj * sh[ShadingLayout::ls1(j).start + c];
             }
-            num[c] += wt * (s0 * (b.gt[3 * i + c] - s1)) as f64;
-            den[c] += wt * (s0 * s0) as f64;
+            let p = (1.0 - m) * sh[ShadingLayout::LD.start + c] + m * s0;
+            let q = 0.04 * (1.0 - m) * s0 + s1;
+            num[c] += wt * (p * (b.gt[3 * i + c] - q)) as f64;
+            den[c] += wt * (p * p) as f64;
         }
     }
     glam::Vec3::from_array(std::array::from_fn(|c| {
@@ -288,12 +302,26 @@ fn evaluate(
             } else {
                 Vec::new()
             };
-            let metal = if with.metal {
-                let colours: Vec<glam::Vec3> =
-                    sig.iter().map(|&sg| metal_colour(&b, &alpha, sg)).collect();
-                profile(&|k, _| colours[k], &|_| 1.0)
+            let (sigma, metallic) = (mean(&mat.sigma), mean(&mat.metallic));
+            let (metal, uniform) = if with.metal {
+                let colours: Vec<glam::Vec3> = sig
+                    .iter()
+                    .map(|&sg| uniform_colour(&b, &alpha, sg, 1.0))
+                    .collect();
+                // The same one-colour model at the fit's mean σ and m: what the metal is
+                // measured against (the fit's own a, free per point, fits any σ better).
+                let (sg, m) = (sigma as f32, metallic as f32);
+                let a = uniform_colour(&b, &alpha, sg, m);
+                let uniform = (0..SCALES)
+                    .map(|j| {
+                        let a = (a * scale(j)).min(glam::Vec3::ONE);
+                        pixels.clone().map(|i| term(i, (a, sg, m))).sum::<f64>()
+                    })
+                    .fold(f64::INFINITY, f64::min)
+                    / n;
+                (profile(&|k, _| colours[k], &|_| 1.0), uniform)
             } else {
-                Vec::new()
+                (Vec::new(), f64::NAN)
             };
             let carried = with.carried.map(|prev| {
                 let pm = prev.material(&b.x_unit);
@@ -307,11 +335,12 @@ fn evaluate(
                 (mean(&pm.sigma), mean(&pm.metallic), obj / n)
             });
             SegmentEval {
-                sigma: mean(&mat.sigma),
-                metallic: mean(&mat.metallic),
+                sigma,
+                metallic,
                 own: own / n,
                 sweep,
                 metal,
+                uniform,
                 carried,
             }
         })
@@ -356,7 +385,10 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                 best,
                 after: None,
                 metallic: e.metallic,
-                metal: (!e.metal.is_empty()).then(|| profile_min(&e.metal)),
+                metal: (!e.metal.is_empty()).then(|| {
+                    let (sigma, obj) = profile_min(&e.metal);
+                    (sigma, obj, e.uniform)
+                }),
                 carried: e.carried,
             }
         })
@@ -365,12 +397,15 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
 
 /// The segments to hop and their targets. Each hypothesis proposes a target: the sweep's best σ
 /// (m left free), a metal's best σ with m = 1 (for a segment fitted non-metallic), and the
-/// last round's mean σ and m. One counts where it lowers the segment's objective by at least
-/// `gain` of it and, for the sweep and the metal, lies far from the fit (σ at least `min_move`
-/// away, or m across 0.5; nearer minima are descent's to find). The carried material needs no
-/// distance: it is a whole material that a fit already reached, and a mirror's σ 0.1 against
-/// 0.25 is a lost part. Of those, the lowest objective wins. A segment already at zero (e.g. all behind the emission
-/// mask) has nothing to gain.
+/// last round's mean σ and m. Each is measured against a baseline of its own kind: the sweep
+/// and the carried material against the fit's objective, the metal (one colour per segment)
+/// against one colour per segment at the fitted σ and m, since the fit's own base colour, free
+/// at every point, explains any σ better than one colour does. One counts where it lowers its
+/// baseline by at least `gain` of it and, for the sweep and the metal, lies far from the fit
+/// (σ at least `min_move` away, or m across 0.5; nearer minima are descent's to find). The
+/// carried material needs no distance: it is a whole material that a fit already reached, and
+/// a mirror's σ 0.1 against 0.25 is a lost part. Of those, the largest relative gain wins. A
+/// segment already at zero (e.g. all behind the emission mask) has nothing to gain.
 fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
     checks
         .iter()
@@ -380,25 +415,28 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
                 (sigma - c.sigma).abs() >= cfg.min_move as f64
                     || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
             };
-            let mut options = vec![(Hypothesis::Sweep, c.best_sigma, None, c.best)];
-            if let Some((sigma, obj)) = c.metal
+            // (hypothesis, σ, m, objective, baseline)
+            let mut options = vec![(Hypothesis::Sweep, c.best_sigma, None, c.best, c.before)];
+            if let Some((sigma, obj, base)) = c.metal
                 && c.metallic < 0.5
             {
-                options.push((Hypothesis::Metal, sigma, Some(1.0), obj));
+                options.push((Hypothesis::Metal, sigma, Some(1.0), obj, base));
             }
             if let Some((sigma, m, obj)) = c.carried {
                 let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
-                options.push((Hypothesis::Carried, sigma, m, obj));
+                options.push((Hypothesis::Carried, sigma, m, obj, c.before));
             }
+            let gain = |obj: f64, base: f64| 1.0 - obj / base;
             options
                 .into_iter()
-                .filter(|&(source, sigma, m, obj)| {
+                .filter(|&(source, sigma, m, obj, base)| {
                     obj.is_finite()
+                        && base > 0.0
                         && (source == Hypothesis::Carried || far(sigma, m))
-                        && c.before - obj >= cfg.gain as f64 * c.before
+                        && gain(obj, base) >= cfg.gain as f64
                 })
-                .min_by(|a, b| a.3.total_cmp(&b.3))
-                .map(|(source, target, target_metallic, obj)| HopCandidate {
+                .max_by(|a, b| gain(a.3, a.4).total_cmp(&gain(b.3, b.4)))
+                .map(|(source, target, target_metallic, obj, _)| HopCandidate {
                     segment: c.segment,
                     pixels: c.pixels,
                     sigma: c.sigma,
@@ -614,6 +652,7 @@ mod tests {
             own,
             sweep,
             metal: Vec::new(),
+            uniform: f64::NAN,
             carried: None,
         }
     }
@@ -652,8 +691,8 @@ mod tests {
         assert!(candidates(&cfg, &checks(&samples[..1], &zero)).is_empty());
     }
 
-    /// A segment rendered as a metal (m = 1) of known colour and roughness: `metal_colour`
-    /// recovers the colour at the true σ, and the metal profile's least objective lies at the
+    /// A segment rendered as a metal (m = 1) of known colour and roughness: `uniform_colour`
+    /// recovers the colour at the true σ (and a dielectric's, rendered so, at m = 0), and the metal profile's least objective lies at the
     /// true σ with (nearly) zero data term, far below the dielectric profile's at the fit.
     #[test]
     fn the_metal_hypothesis_finds_a_metal() {
@@ -678,7 +717,16 @@ mod tests {
         let all: Vec<u32> = (0..n as u32).collect();
         let b = st.batch(&all);
         let alpha = vec![0.0; n];
-        let fitted = metal_colour(&b, &alpha, sigma);
+        let fitted = uniform_colour(&b, &alpha, sigma, 1.0);
+        assert!((fitted - a).abs().max_element() < 1e-4, "{fitted} vs {a}");
+        let mut dielectric = st.batch(&all);
+        for i in 0..n {
+            let sh = ShadingLayout::pixel(&dielectric.shadings, i).to_vec();
+            let (kd, ks) = reflectances(a, 0.0);
+            let c = factorised_render(kd.to_array(), ks.to_array(), sigma, &sh);
+            dielectric.gt[3 * i..3 * i + 3].copy_from_slice(&c);
+        }
+        let fitted = uniform_colour(&dielectric, &alpha, sigma, 0.0);
         assert!((fitted - a).abs().max_element() < 1e-4, "{fitted} vs {a}");
         let (cfg, _) = toy_fit();
         let tr = toy_trainer(cfg);
@@ -697,6 +745,8 @@ mod tests {
             "{best} vs {dielectric}, {}",
             e.own
         );
+        // One colour at the fit's σ and m explains it far worse than the metal does.
+        assert!(best < 1e-3 * e.uniform, "{best} vs {}", e.uniform);
         // The check proposes the metal for a segment fitted non-metallic, pulling m to 1 with σ.
         let mut rows = checks(&samples, &[e]);
         rows[0].metallic = 0.1;
@@ -706,6 +756,57 @@ mod tests {
         assert_eq!(
             (c[0].target, c[0].target_metallic),
             (sigma as f64, Some(1.0))
+        );
+    }
+
+    /// A pull that names an m target moves that segment's m towards it, beyond what the same
+    /// steps without it do.
+    #[test]
+    fn the_pull_moves_m_where_it_names_a_target() {
+        // Black photos and shadings: the data term does not see m, the pull and priors do.
+        let mut st = toy_store(400);
+        st.pixels.shadings.iter_mut().for_each(|v| *v = 0.0);
+        st.pixels.gt.iter_mut().for_each(|v| *v = 0.0);
+        let (cfg, schedule) = toy_fit();
+        let (tr, _) = crate::pipeline::fit::fit_more(
+            toy_trainer(cfg),
+            &st,
+            SegMode::Part,
+            &schedule,
+            5,
+            false,
+        );
+        let samples = sample(&st, 64);
+        let m_of = |t: &Trainer| -> Vec<f64> {
+            evaluate(&t.model, &st, &samples, 0.0, Hypotheses::default())
+                .iter()
+                .map(|e| e.metallic)
+                .collect()
+        };
+        let run = |pull: Option<SigmaPull>| {
+            let mut t = tr.clone();
+            t.pull = pull;
+            let mut rng = Rng::new(9, 1);
+            for _ in 0..100 {
+                let idx: Vec<u32> = (0..64).map(|_| rng.below(400) as u32).collect();
+                drop(step_entries(&mut t, None, &st, &idx, SegMode::Part));
+            }
+            t.sync_host_table();
+            m_of(&t)
+        };
+        let free = run(None);
+        let pulled = run(Some(SigmaPull {
+            weight: 10.0,
+            target: Default::default(),
+            metallic: [(2, 1.0)].into_iter().collect(),
+        }));
+        let k = samples.iter().position(|s| s.id == 2).unwrap();
+        // Adam's step size bounds the move in 100 steps (about 0.04 here, whatever the weight).
+        assert!(
+            pulled[k] > free[k] + 0.02,
+            "m {} with the pull, {} without",
+            pulled[k],
+            free[k]
         );
     }
 
@@ -872,9 +973,6 @@ mod tests {
                 );
             }
         }
-        // The metal hypothesis proposes at least one segment of this toy store, so the m pull
-        // is exercised too.
-        assert!(rep.candidates.iter().any(|c| c.target_metallic.is_some()));
         assert!(rep.objective_after.is_some());
         assert_eq!(rep.segments.len(), 5);
         assert_eq!(rep.accepted, hop_helped(&rep.candidates, hc.gain));
