@@ -592,6 +592,20 @@ mod tests {
     use crate::pipeline::test_data::{store, toy_fit, toy_store};
     use fipt_core::scene::SceneBox;
 
+    /// The toy model fitted on `st` (part loss, 25 steps), and its schedule.
+    fn toy_fitted(st: &PixelStore) -> (Trainer, TrainSection) {
+        let (cfg, schedule) = toy_fit();
+        let (tr, _) = crate::pipeline::fit::fit_more(
+            toy_trainer(cfg),
+            st,
+            SegMode::Part,
+            &schedule,
+            5,
+            false,
+        );
+        (tr, schedule)
+    }
+
     fn toy_trainer(cfg: fipt_core::model::TrainConfig) -> Trainer {
         let scene_box = SceneBox { min: 0.0, max: 1.0 };
         Trainer::new(cfg, scene_box, &burn::tensor::Device::flex(), 5)
@@ -767,15 +781,7 @@ mod tests {
         let mut st = toy_store(400);
         st.pixels.shadings.iter_mut().for_each(|v| *v = 0.0);
         st.pixels.gt.iter_mut().for_each(|v| *v = 0.0);
-        let (cfg, schedule) = toy_fit();
-        let (tr, _) = crate::pipeline::fit::fit_more(
-            toy_trainer(cfg),
-            &st,
-            SegMode::Part,
-            &schedule,
-            5,
-            false,
-        );
+        let (tr, _) = toy_fitted(&st);
         let samples = sample(&st, 64);
         let m_of = |t: &Trainer| -> Vec<f64> {
             evaluate(&t.model, &st, &samples, 0.0, Hypotheses::default())
@@ -860,15 +866,7 @@ mod tests {
     #[test]
     fn the_check_holds_its_share_of_the_prior() {
         let st = toy_store(400);
-        let (cfg, schedule) = toy_fit();
-        let (tr, _) = crate::pipeline::fit::fit_more(
-            toy_trainer(cfg),
-            &st,
-            SegMode::Part,
-            &schedule,
-            5,
-            false,
-        );
+        let (tr, schedule) = toy_fitted(&st);
         let lambda_d = 0.05;
         let report = |prior: f32| {
             // gain 1: no segment can gain it all, so nothing hops.
