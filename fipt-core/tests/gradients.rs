@@ -192,7 +192,25 @@ fn loss_gradients() {
     grad_check(
         "L_d",
         &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
-        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 5e-4),
+        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 5e-4, 1.0),
+        1e-6,
+        1e-6,
+        1e-12,
+    );
+    // The m term weighted apart (`TrainConfig::metallic_scale`): λ·(mean|σ − 1| + s·mean m).
+    let t = |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n, 1]), &dev64());
+    let got = loss::diffuse_loss(t(&s), t(&m), 1e-4, 5.0).into_scalar::<f64>();
+    let mean =
+        |v: &[f32], f: &dyn Fn(f32) -> f32| v.iter().map(|&x| f(x) as f64).sum::<f64>() / n as f64;
+    let want = 1e-4 * (mean(&s, &|x| (x - 1.0).abs()) + 5.0 * mean(&m, &|x| x));
+    assert!(
+        (got - want).abs() < 1e-9,
+        "L_d with the m term ×5: {got} vs {want}"
+    );
+    grad_check(
+        "L_d, m term ×5",
+        &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
+        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 1e-4, 5.0),
         1e-6,
         1e-6,
         1e-12,

@@ -44,6 +44,9 @@ pub struct RefineSection {
     pub lambda_d: Option<f32>,
     /// `train.lambda_d_warmup` of the fits on refined shadings (None: the train section's).
     pub lambda_d_warmup: Option<f32>,
+    /// Weight of Eq. 17's m term in the fits on refined shadings (None: the same λ_d as its σ
+    /// term, the reference).
+    pub lambda_m: Option<f32>,
     /// The path-traced estimators.
     pub paths: RefineConfig,
 }
@@ -60,6 +63,7 @@ impl Default for RefineSection {
             // `docs/departures/refine-lambda-d.md`.
             lambda_d: Some(1e-4),
             lambda_d_warmup: None,
+            lambda_m: None,
             paths: RefineConfig {
                 samples: fipt_bake::integrators::bake::BakeSamples {
                     diffuse: 64,
@@ -319,6 +323,15 @@ impl Config {
         }
         t
     }
+
+    /// Round `r`'s weight of Eq. 17's m term as a multiple of its λ_d
+    /// (`TrainConfig::metallic_scale`): 1, except in the refined rounds with `refine.lambda_m`.
+    pub fn metallic_scale(&self, r: usize) -> f32 {
+        match self.refine.lambda_m {
+            Some(m) if r > 0 => m / self.train_for_round(r).lambda_d,
+            _ => 1.0,
+        }
+    }
 }
 
 impl TrainSection {
@@ -577,7 +590,7 @@ impl Config {
         validate_bake(&self.bake)?;
         self.train.validate(self.refine.lambda_d_warmup)?;
         self.emitters.validate()?;
-        validate_refine(&self.refine)?;
+        validate_refine(&self.refine, self.train.lambda_d)?;
         check(
             self.maps.albedo_samples >= 1,
             "maps.albedo_samples",
@@ -775,7 +788,7 @@ impl EmitterSection {
 }
 
 /// The `refine` section's ranges.
-fn validate_refine(refine: &RefineSection) -> Result<()> {
+fn validate_refine(refine: &RefineSection, train_lambda_d: f32) -> Result<()> {
     let r = &refine.paths;
     check(
         r.samples.diffuse >= 1 && r.samples.specular.iter().all(|&s| s >= 1),
@@ -800,6 +813,16 @@ fn validate_refine(refine: &RefineSection) -> Result<()> {
     check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
     if let Some(l) = refine.lambda_d {
         check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
+    }
+    if let Some(m) = refine.lambda_m {
+        check(m >= 0.0 && m.is_finite(), "refine.lambda_m", "must be >= 0")?;
+        // It is held as a multiple of the refined rounds' λ_d.
+        let ld = refine.lambda_d.unwrap_or(train_lambda_d);
+        check(
+            ld > 0.0,
+            "refine.lambda_m",
+            "needs a refined λ_d > 0 (refine.lambda_d, else train.lambda_d)",
+        )?;
     }
     Ok(())
 }
@@ -879,6 +902,27 @@ mod tests {
             .to_string();
         assert!(e.contains("backend"), "{e}");
         assert_eq!(Config::from_json("{}").unwrap(), Config::default());
+    }
+
+    /// `refine.lambda_m` weighs Eq. 17's m term in the refined rounds alone, as a multiple of
+    /// their λ_d; a bad value or a refined λ_d of 0 is refused naming the key.
+    #[test]
+    fn refine_lambda_m_scales_the_m_term_of_refined_rounds() {
+        let c = Config::from_json(r#"{"refine": {"lambda_d": 1e-4, "lambda_m": 5e-4}}"#).unwrap();
+        assert_eq!(c.metallic_scale(0), 1.0);
+        assert!((c.metallic_scale(1) - 5.0).abs() < 1e-5);
+        assert!((c.metallic_scale(2) - 5.0).abs() < 1e-5);
+        // Without refine.lambda_d the refined rounds hold train.lambda_d.
+        let c = Config::from_json(r#"{"refine": {"lambda_d": null, "lambda_m": 1e-3}}"#).unwrap();
+        assert!((c.metallic_scale(1) - 1e-3 / 5e-4).abs() < 1e-5);
+        assert_eq!(Config::default().metallic_scale(1), 1.0);
+        for bad in [
+            r#"{"refine": {"lambda_m": -1e-4}}"#,
+            r#"{"refine": {"lambda_d": 0.0, "lambda_m": 5e-4}}"#,
+        ] {
+            let e = Config::from_json(bad).unwrap_err().to_string();
+            assert!(e.contains("refine.lambda_m"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -40,9 +40,16 @@ pub fn emission_loss(raw: Tensor<2>, weight: f32) -> Tensor<1> {
     raw.abs().mean().mul_scalar(weight)
 }
 
-/// Eq. 17: L_d = λ_d · (mean |σ − 1| + mean m), a pull towards rough dielectrics.
-pub fn diffuse_loss(sigma: Tensor<2>, metallic: Tensor<2>, weight: f32) -> Tensor<1> {
-    (sigma.sub_scalar(1.0).abs().mean() + metallic.mean()).mul_scalar(weight)
+/// Eq. 17: L_d = λ_d · (mean |σ − 1| + s·mean m), a pull towards rough dielectrics; s = 1 is
+/// the paper's (s: `TrainConfig::metallic_scale`).
+pub fn diffuse_loss(
+    sigma: Tensor<2>,
+    metallic: Tensor<2>,
+    weight: f32,
+    metallic_scale: f32,
+) -> Tensor<1> {
+    (sigma.sub_scalar(1.0).abs().mean() + metallic.mean().mul_scalar(metallic_scale))
+        .mul_scalar(weight)
 }
 
 /// A soft bound on the material head's σ and m logits z (a departure from the reference):

@@ -64,6 +64,7 @@ impl FitSetup {
         ctx.cfg
             .train_for_round(r)
             .model_config(self.grid_levels, ctx.cfg.backend)
+            .with_metallic_scale(ctx.cfg.metallic_scale(r))
     }
 }
 

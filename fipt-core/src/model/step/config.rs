@@ -38,6 +38,9 @@ pub struct TrainConfig {
     /// λ_d of Eq. 17.
     #[config(default = 5e-4)]
     pub lambda_d: f32,
+    /// Weight of Eq. 17's m term as a multiple of λ_d (1: the paper's λ_d·(|σ − 1| + m)).
+    #[config(default = 1.0)]
+    pub metallic_scale: f32,
     /// λ_p of Eq. 18–19.
     #[config(default = 5e-3)]
     pub lambda_part: f32,

@@ -37,7 +37,12 @@ impl Trainer {
         let alpha = alpha_from_raw(raw.clone());
         let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
-        let mut ld = loss::diffuse_loss(mat.sigma.clone(), mat.metallic.clone(), self.cfg.lambda_d);
+        let mut ld = loss::diffuse_loss(
+            mat.sigma.clone(),
+            mat.metallic.clone(),
+            self.cfg.lambda_d,
+            self.cfg.metallic_scale,
+        );
         if let Some(z_max) = self.cfg.logit_bound {
             // Reported with the prior it bounds (the loss parts keep their five slots).
             let z = sigma_metallic_logits(raw_mat);
