@@ -68,6 +68,6 @@ fn small_suite_scene_beats_the_best_constants_and_resumes() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
-/// Margin of k_d over the best constant: measured 4.5 dB on this scene (a fit that learned
-/// nothing scores about 0).
+/// Margin of k_d over the best constant: measured 4.7 dB on this scene (1024-spp photos; a
+/// fit that learned nothing scores about 0).
 const KD_MARGIN_DB: f64 = 2.5;
