@@ -45,17 +45,21 @@ pub fn level_weights(sigma: f32) -> [f32; ROUGHNESS_LEVELS] {
 /// Eq. 5 with Eq. 8's roughness lerp on one pixel's packed shadings (`ShadingLayout`):
 /// k_d·L_d + k_s·L_s0(σ) + L_s1(σ).
 pub fn factorised_render(kd: [f32; 3], ks: [f32; 3], sigma: f32, shading: &[f32]) -> [f32; 3] {
+    let (s0, s1) = specular_shadings(sigma, shading);
+    std::array::from_fn(|c| kd[c] * shading[ShadingLayout::LD.start + c] + ks[c] * s0[c] + s1[c])
+}
+
+/// Eq. 8's roughness lerp of one pixel's packed specular shadings: (L_s0(σ), L_s1(σ)), RGB.
+pub fn specular_shadings(sigma: f32, shading: &[f32]) -> ([f32; 3], [f32; 3]) {
     let w = level_weights(sigma);
-    let mut out = [0.0; 3];
+    let (mut s0, mut s1) = ([0.0; 3], [0.0; 3]);
     for c in 0..3 {
-        let (mut s0, mut s1) = (0.0, 0.0);
         for (j, wj) in w.iter().enumerate() {
-            s0 += wj * shading[ShadingLayout::ls0(j).start + c];
-            s1 += wj * shading[ShadingLayout::ls1(j).start + c];
+            s0[c] += wj * shading[ShadingLayout::ls0(j).start + c];
+            s1[c] += wj * shading[ShadingLayout::ls1(j).start + c];
         }
-        out[c] = kd[c] * shading[ShadingLayout::LD.start + c] + ks[c] * s0 + s1;
     }
-    out
+    (s0, s1)
 }
 
 /// One GGX-sampled reflection at roughness σ in the local frame (ω_o = `wo`, z = normal):

@@ -220,19 +220,14 @@ fn uniform_colour(
     sigma: f32,
     m: f32,
 ) -> glam::Vec3 {
-    let w = fipt_core::brdf::level_weights(sigma);
     let (mut num, mut den) = ([0.0f64; 3], [0.0f64; 3]);
     for (i, al) in alpha.iter().enumerate() {
         let sh = ShadingLayout::pixel(&b.shadings, i);
+        let (s0, s1) = fipt_core::brdf::specular_shadings(sigma, sh);
         let wt = ((1.0 - al) * (1.0 - al)) as f64;
         for c in 0..3 {
-            let (mut s0, mut s1) = (0.0f32, 0.0f32);
-            for (j, wj) in w.iter().enumerate() {
-                s0 += wj * sh[ShadingLayout::ls0(j).start + c];
-                s1 += wj * sh[ShadingLayout::ls1(j).start + c];
-            }
-            let p = (1.0 - m) * sh[ShadingLayout::LD.start + c] + m * s0;
-            let q = 0.04 * (1.0 - m) * s0 + s1;
+            let p = (1.0 - m) * sh[ShadingLayout::LD.start + c] + m * s0[c];
+            let q = 0.04 * (1.0 - m) * s0[c] + s1[c];
             num[c] += wt * (p * (b.gt[3 * i + c] - q)) as f64;
             den[c] += wt * (p * p) as f64;
         }
@@ -278,9 +273,12 @@ fn evaluate(
                 .clone()
                 .map(|i| term(i, (base(i), mat.sigma[i], mat.metallic[i])))
                 .sum();
-            let profile = |colour: &(dyn Fn(usize, usize) -> glam::Vec3 + Sync),
+            // At each σ of `sigmas` (the k-th), the least objective over the scales of
+            // `colour(k, pixel)`, with `metallic(pixel)`.
+            let profile = |sigmas: &[f32],
+                           colour: &(dyn Fn(usize, usize) -> glam::Vec3 + Sync),
                            metallic: &(dyn Fn(usize) -> f32 + Sync)| {
-                let grid: Vec<f64> = (0..SWEEP * SCALES)
+                let grid: Vec<f64> = (0..sigmas.len() * SCALES)
                     .into_par_iter()
                     .map(|cell| {
                         let (k, j) = (cell / SCALES, cell % SCALES);
@@ -288,7 +286,7 @@ fn evaluate(
                             .clone()
                             .map(|i| {
                                 let a = (colour(k, i) * scale(j)).min(glam::Vec3::ONE);
-                                term(i, (a, sig[k], metallic(i)))
+                                term(i, (a, sigmas[k], metallic(i)))
                             })
                             .sum()
                     })
@@ -298,7 +296,7 @@ fn evaluate(
                     .collect::<Vec<f64>>()
             };
             let sweep = if with.sweep {
-                profile(&|_, i| base(i), &|i| mat.metallic[i])
+                profile(&sig, &|_, i| base(i), &|i| mat.metallic[i])
             } else {
                 Vec::new()
             };
@@ -312,14 +310,8 @@ fn evaluate(
                 // measured against (the fit's own a, free per point, fits any σ better).
                 let (sg, m) = (sigma as f32, metallic as f32);
                 let a = uniform_colour(&b, &alpha, sg, m);
-                let uniform = (0..SCALES)
-                    .map(|j| {
-                        let a = (a * scale(j)).min(glam::Vec3::ONE);
-                        pixels.clone().map(|i| term(i, (a, sg, m))).sum::<f64>()
-                    })
-                    .fold(f64::INFINITY, f64::min)
-                    / n;
-                (profile(&|k, _| colours[k], &|_| 1.0), uniform)
+                let uniform = profile(&[sg], &|_, _| a, &|_| m)[0];
+                (profile(&sig, &|k, _| colours[k], &|_| 1.0), uniform)
             } else {
                 (Vec::new(), f64::NAN)
             };
