@@ -738,8 +738,8 @@ fn config_reader() {
 
 /// The shading cache (`cache::load`, and `load_keyed` without a key): never a panic, never an
 /// allocation from its header's sizes; a cut file is an error naming it; a damaged key or size
-/// in the header is stale (`None`; `load_keyed` ignores the key); a loaded cache has the
-/// asked-for sizes.
+/// in the header is stale (`None`; `load_keyed` ignores the key); a changed payload or content
+/// hash is an error; a loaded cache has the asked-for sizes.
 #[test]
 fn shading_cache_reader() {
     const KEY: u64 = 0x00c0_ffee;
@@ -776,6 +776,16 @@ fn shading_cache_reader() {
             let sizes = changed.iter().any(|&i| i >= 16);
             prop_assert!(matches!(keyed, Ok(None)), "{what}: not stale");
             prop_assert_eq!(matches!(any, Ok(None)), sizes, "{}", what);
+        }
+        // Bytes 48..56 hold the content hash of the payload after them: any change there or in
+        // the payload is damage, refused by name.
+        if bad.len() == good.len() && !changed.is_empty() && changed.iter().all(|&i| i >= 48) {
+            for r in [&keyed, &any] {
+                prop_assert!(
+                    matches!(r, Err(e) if format!("{e:#}").contains("damaged")),
+                    "{what}: a changed payload was accepted"
+                );
+            }
         }
         for r in [keyed, any] {
             if matches!(d, Damage::Truncate(_)) {

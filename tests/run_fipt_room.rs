@@ -9,6 +9,8 @@
 //! emitters; and the same run killed at points across all stages and rounds (and once stopped
 //! by Ctrl-C) resumes to the same metrics to 1e-4, never showing a partial file.
 
+mod common;
+
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
 use fipt_train::pipeline::evaluate::constant_predictor;
 use serde_json::Value;
@@ -571,8 +573,12 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
             when: |o, _| newest_step(o, 0) >= Some(100),
             delay_ms: 0,
             sigint: true,
+            contend: false,
         },
-        Stop::kill("round 0's fit", |o, _| newest_step(o, 0) >= Some(300), 100),
+        Stop {
+            contend: true,
+            ..Stop::kill("round 0's fit", |o, _| newest_step(o, 0) >= Some(300), 100)
+        },
         Stop::kill(
             "refinement 1",
             |o, _| o.join("checkpoint/round0/report.json").exists(),
@@ -586,7 +592,28 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         interrupt(&b, &fast, stop);
         assert_complete(&b);
     }
-    let m2 = run(&b, &fast, None);
+    // A byte flipped in the last round's saved table: the run names the file, discards that
+    // round's fit and fits it again.
+    let last = std::fs::read_dir(b.join("checkpoint/round1"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with("step"))
+        .max()
+        .expect("round 1's saved fit");
+    let table = last.join("hashgrid.bin");
+    let mut bytes = std::fs::read(&table).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x10;
+    std::fs::write(&table, bytes).unwrap();
+    let o = run_cmd(&b, &fast).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "the run after a flipped byte: {err}");
+    assert!(
+        err.contains("hashgrid.bin") && err.contains("damaged") && err.contains("round 1"),
+        "the flipped byte was not named: {err}"
+    );
+    let m2 = read_json(&b.join("metrics.json"));
     assert!(
         m2["resumed"].as_str().is_some(),
         "the last run did not resume"
@@ -651,6 +678,8 @@ struct Stop {
     when: fn(&Path, u32) -> bool,
     delay_ms: u64,
     sigint: bool,
+    /// Before the stop, a second `run` into the same folder is refused naming the first.
+    contend: bool,
 }
 
 /// The newest saved step of `round`'s fit in a run's checkpoint folder.
@@ -669,6 +698,7 @@ impl Stop {
             when,
             delay_ms,
             sigint: false,
+            contend: false,
         }
     }
 }
@@ -678,19 +708,25 @@ fn staged(out: &Path, name: &str, pid: u32) -> bool {
     out.join(format!(".{name}.tmp-{pid}.tmp")).exists()
 }
 
+/// `fipt-train run --json --no-zoo` of the reference scene into `out` with `config`.
+fn run_cmd(out: &Path, config: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_fipt-train"));
+    c.args(["run", "--json", "--no-zoo", "--scene"])
+        .arg(scene_dir())
+        .arg("--out")
+        .arg(out)
+        .arg("--config")
+        .arg(config);
+    c
+}
+
 /// Starts `fipt-train run` on the fast config into `out` and stops it as `stop` says. A
 /// SIGINT must end it with exit code 130, one line on stderr, and a checkpoint of the step
 /// that line names.
 fn interrupt(out: &Path, config: &Path, stop: &Stop) {
     std::fs::create_dir_all(out).unwrap();
     let err_path = out.with_extension("stderr");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
-        .args(["run", "--json", "--no-zoo", "--scene"])
-        .arg(scene_dir())
-        .arg("--out")
-        .arg(out)
-        .arg("--config")
-        .arg(config)
+    let mut child = run_cmd(out, config)
         .stdout(std::process::Stdio::null())
         .stderr(std::fs::File::create(&err_path).unwrap())
         .spawn()
@@ -707,6 +743,24 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
             break;
         }
         std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    if stop.contend {
+        let o = run_cmd(out, config).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(
+            o.status.code(),
+            Some(1),
+            "a second run into one folder: {err}"
+        );
+        assert!(
+            err.contains(&format!("in use by fipt process {}", child.id()))
+                && err.contains(".fipt.lock"),
+            "a second run into one folder: {err}"
+        );
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the first run ended when the second started"
+        );
     }
     std::thread::sleep(std::time::Duration::from_millis(stop.delay_ms));
     // A resumed run neither discarded its saved state nor failed.
@@ -788,7 +842,8 @@ fn walk(dir: &Path) -> Vec<PathBuf> {
 fn assert_complete(out: &Path) {
     for p in walk(out) {
         let s = p.to_string_lossy().into_owned();
-        if s.contains(".tmp") {
+        // Temporaries, and the lock file (empty while no one holds it).
+        if s.contains(".tmp") || s.ends_with(".fipt.lock") {
             continue;
         }
         let name = p.file_name().unwrap().to_string_lossy().into_owned();
@@ -803,31 +858,14 @@ fn assert_complete(out: &Path) {
                     "model.json",
                     "fields.bpk",
                     "hashgrid.bin",
+                    "manifest.json",
                 ] {
                     assert!(p.join(f).is_file(), "{s}: {f} missing");
                 }
             }
             continue;
         }
-        let len = std::fs::metadata(&p).unwrap().len();
-        assert!(len > 0, "{s}: empty");
-        match p.extension().and_then(|e| e.to_str()) {
-            Some("json") => {
-                serde_json::from_str::<Value>(&std::fs::read_to_string(&p).unwrap())
-                    .unwrap_or_else(|e| panic!("{s}: {e}"));
-            }
-            Some("png") => {
-                image::open(&p).unwrap_or_else(|e| panic!("{s}: {e}"));
-            }
-            Some("exr") => {
-                fipt_core::scene::Image::read_exr(&p).unwrap_or_else(|e| panic!("{s}: {e}"));
-            }
-            Some("html") => {
-                let t = std::fs::read_to_string(&p).unwrap();
-                assert!(t.trim_end().ends_with("</html>"), "{s}: cut short");
-            }
-            _ => {}
-        }
+        common::assert_readable(&p);
     }
     // A map folder holds every view of every map it has.
     for split in ["train", "val"] {

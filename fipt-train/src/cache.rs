@@ -12,16 +12,18 @@ use fipt_core::shading::ShadingLayout;
 use std::io::Read;
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"FIPTSHD1";
+const MAGIC: &[u8; 8] = b"FIPTSHD2";
+/// Magic, key, views, width, height, shading size, content hash: 8 bytes each.
+const HEAD: usize = 56;
 /// Bumped whenever the bake's maths or this format changes.
-pub const BAKE_CODE_VERSION: u32 = 4;
+pub const BAKE_CODE_VERSION: u32 = 5;
 
 /// Cache key of a scene's bake: code version, config, seed, mesh, cameras and train images.
-pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> u64 {
+pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> Result<u64> {
     let mut h = Fnv64::default();
     h.bytes(&BAKE_CODE_VERSION.to_le_bytes());
     h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
-    h.bytes(serde_json::to_string(cfg).unwrap_or_default().as_bytes());
+    h.bytes(serde_json::to_string(cfg)?.as_bytes());
     h.bytes(&cfg.seed.to_le_bytes());
     ds.mesh.hash_into(&mut h);
     for v in &ds.train.views {
@@ -37,10 +39,22 @@ pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> u64 {
         }
         h.f32s(&v.image.data);
     }
-    h.finish()
+    Ok(h.finish())
 }
 
-/// Writes the binary cache atomically.
+/// The bytes of `v` as written (little-endian f32s).
+fn le_bytes(v: &[f32]) -> std::borrow::Cow<'_, [u8]> {
+    #[cfg(target_endian = "little")]
+    {
+        std::borrow::Cow::Borrowed(bytemuck::cast_slice(v))
+    }
+    #[cfg(not(target_endian = "little"))]
+    {
+        std::borrow::Cow::Owned(v.iter().flat_map(|x| x.to_le_bytes()).collect())
+    }
+}
+
+/// Writes the binary cache atomically, with the content hash of its payload in its header.
 pub fn save(
     path: &Path,
     key: u64,
@@ -48,12 +62,18 @@ pub fn save(
     height: usize,
     shadings: &[Vec<f32>],
 ) -> Result<()> {
-    let mut head = Vec::new();
+    let mut head = Vec::with_capacity(HEAD);
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&key.to_le_bytes());
     for v in [shadings.len(), width, height, ShadingLayout::DIM] {
         head.extend_from_slice(&(v as u64).to_le_bytes());
     }
+    // The content hash: XXH3-64 of the payload's bytes, view after view.
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    for s in shadings {
+        h.update(&le_bytes(s));
+    }
+    head.extend_from_slice(&h.digest().to_le_bytes());
     let parts: Vec<Part> = std::iter::once(Part::Bytes(&head))
         .chain(shadings.iter().map(|s| Part::F32s(s)))
         .collect();
@@ -62,7 +82,8 @@ pub fn save(
 }
 
 /// Loads the binary cache if it exists and its key, sizes and length match; `Ok(None)` when it
-/// is absent or stale, an error when it is corrupt.
+/// is absent or stale, an error naming the file when it is damaged (not a cache, cut, longer
+/// than its header says, or its content hash differs).
 pub fn load(
     path: &Path,
     key: u64,
@@ -71,6 +92,26 @@ pub fn load(
     height: usize,
 ) -> Result<Option<Vec<Vec<f32>>>> {
     load_keyed(path, Some(key), views, width, height)
+}
+
+/// `load`, but a damaged cache is discarded (removed, with a message naming it and why) and
+/// reads as absent, so that the caller computes it again.
+pub fn load_or_discard(
+    path: &Path,
+    key: u64,
+    views: usize,
+    width: usize,
+    height: usize,
+) -> Result<Option<Vec<Vec<f32>>>> {
+    match load(path, key, views, width, height) {
+        Ok(v) => Ok(v),
+        Err(e) => {
+            eprintln!("discarded a damaged cache, which is computed again: {e:#}");
+            std::fs::remove_file(path)
+                .with_context(|| format!("{}: cannot remove the damaged cache", path.display()))?;
+            Ok(None)
+        }
+    }
 }
 
 /// Like `load`, with `None` accepting any key (diagnostics reading another run's shadings).
@@ -86,10 +127,10 @@ pub fn load_keyed(
     }
     let mut f =
         std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-    let mut head = [0u8; 48];
+    let mut head = [0u8; HEAD];
     if f.read_exact(&mut head).is_err() || &head[..8] != MAGIC {
         bail!(
-            "{}: not a fipt shading cache (delete it to rebake)",
+            "{}: not a fipt shading cache of this version (delete it to rebake)",
             path.display()
         );
     }
@@ -110,6 +151,7 @@ pub fn load_keyed(
     let per_view = width * height * ShadingLayout::DIM;
     let mut out = Vec::with_capacity(views);
     let mut buf = vec![0u8; per_view * 4];
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
     for k in 0..views {
         f.read_exact(&mut buf).with_context(|| {
             format!(
@@ -117,10 +159,23 @@ pub fn load_keyed(
                 path.display()
             )
         })?;
+        h.update(&buf);
         out.push(
             buf.chunks_exact(4)
                 .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
                 .collect(),
+        );
+    }
+    if f.read(&mut [0u8; 1]).is_ok_and(|n| n > 0) {
+        bail!(
+            "{}: longer than its header says (delete it to rebake)",
+            path.display()
+        );
+    }
+    if h.digest() != num(5) {
+        bail!(
+            "{}: damaged, its content hash differs (delete it to rebake)",
+            path.display()
         );
     }
     Ok(Some(out))

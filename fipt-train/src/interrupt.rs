@@ -38,6 +38,18 @@ pub fn install() {
     });
 }
 
+/// Installs a handler for commands with no safe point to stop at (every file they write
+/// appears atomically): the first Ctrl-C prints one line and exits with 130 at once.
+pub fn install_quit() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = ctrlc::set_handler(|| {
+            eprintln!("interrupted (nothing half-written is left)");
+            std::process::exit(130);
+        });
+    });
+}
+
 /// Whether a stop was requested.
 pub fn requested() -> bool {
     STOP.load(Ordering::SeqCst)

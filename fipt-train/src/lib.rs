@@ -14,6 +14,7 @@ pub mod html_report;
 pub mod image_metrics;
 pub mod interrupt;
 pub mod learned;
+pub mod lock;
 pub mod output;
 pub mod pipeline;
 pub mod progress;

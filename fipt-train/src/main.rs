@@ -404,8 +404,13 @@ fn main() {
         quiet: false,
     });
     // Ctrl-C asks the long commands to stop at a safe point (`interrupt`).
-    if matches!(cmd, Cmd::Demo { .. } | Cmd::Run { .. } | Cmd::Suite { .. }) {
+    if matches!(
+        cmd,
+        Cmd::Demo { .. } | Cmd::Run { .. } | Cmd::Suite { .. } | Cmd::Bake { .. } | Cmd::Render(_)
+    ) {
         fipt_train::interrupt::install();
+    } else {
+        fipt_train::interrupt::install_quit();
     }
     if let Err(e) = dispatch(cmd) {
         if let Some(i) = e.downcast_ref::<fipt_train::interrupt::Interrupted>() {

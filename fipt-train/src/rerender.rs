@@ -502,6 +502,14 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         job.split.as_str()
     };
     let dir = job.out.join(group).join(folder);
+    // One writer per OUT; the views go to a staged folder that replaces `dir` whole once every
+    // view is rendered, and `render.json` (removed just before) marks the finished set.
+    let _lock = crate::lock::DirLock::acquire(&job.out)?;
+    crate::pipeline::checkpoint::remove_stale_tmp_in(&job.out.join(group));
+    let staged = crate::output::sibling(&dir, "tmp");
+    let _ = std::fs::remove_dir_all(&staged);
+    std::fs::create_dir_all(&staged)
+        .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", staged.display()))?;
     let edits = Edits {
         relight: relight.as_ref(),
         meta,
@@ -509,28 +517,56 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     };
     let t_render = Instant::now();
     let mesh = views.as_ref().and_then(|v| v.mesh.as_ref());
-    let (source, r) = match &model {
-        Some(m) => render_model(job, m, mesh, &edits, &picked, &dir)?,
-        None => {
-            let (Some(mesh), Some(scene)) = (mesh, &job.scene) else {
-                bail!("--truth needs --scene");
-            };
-            let Some(meta) = meta else {
-                bail!(
-                    "{}: --truth needs the scene's ground truth (missing)",
-                    scene.join("scene_meta.json").display()
-                );
-            };
-            let truth = TrueScene {
-                dir: scene,
-                mesh,
-                meta,
-            };
-            let q = job.quiet;
-            let r = render_truth(&truth, &edits, &picked, &job.path, job.selection, &dir, q)?;
-            ("truth".to_string(), r)
+    let rendered = (|| -> Result<(String, Rendered)> {
+        Ok(match &model {
+            Some(m) => render_model(job, m, mesh, &edits, &picked, &staged)?,
+            None => {
+                let (Some(mesh), Some(scene)) = (mesh, &job.scene) else {
+                    bail!("--truth needs --scene");
+                };
+                let Some(meta) = meta else {
+                    bail!(
+                        "{}: --truth needs the scene's ground truth (missing)",
+                        scene.join("scene_meta.json").display()
+                    );
+                };
+                let truth = TrueScene {
+                    dir: scene,
+                    mesh,
+                    meta,
+                };
+                let q = job.quiet;
+                let r = render_truth(
+                    &truth,
+                    &edits,
+                    &picked,
+                    &job.path,
+                    job.selection,
+                    &staged,
+                    q,
+                )?;
+                ("truth".to_string(), r)
+            }
+        })
+    })();
+    let (source, r) = match rendered {
+        Ok(v) => v,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&staged);
+            return Err(crate::interrupt::reword(e, || {
+                format!(
+                    "interrupted during the render; {} is as it was",
+                    job.out.display()
+                )
+            }));
         }
     };
+    let marker = job.out.join("render.json");
+    if marker.exists() {
+        std::fs::remove_file(&marker)
+            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", marker.display()))?;
+    }
+    crate::output::replace_dir(&staged, &dir)?;
     let wall = t_render.elapsed().as_secs_f64();
     let scores: Vec<f64> = r.views.iter().filter_map(|v| v.psnr_db).collect();
     let report = RenderReport {
@@ -556,7 +592,14 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         stats: r.stats,
         threads: rayon::current_num_threads(),
     };
-    write_json(&job.out.join("render.json"), &report)?;
+    write_json(&marker, &report)?;
+    // A Ctrl-C during the last view ends the command now that the outputs are whole.
+    crate::interrupt::check(|| {
+        format!(
+            "interrupted after the render's outputs were complete in {}",
+            job.out.display()
+        )
+    })?;
     Ok(report)
 }
 

@@ -5,6 +5,10 @@
 //! (copied under a temporary name and renamed); a damaged entry is listed as damaged with the
 //! reason, never skipped silently.
 //!
+//! Changes (`register`, `import`, `rm`) hold the zoo's lock (`crate::lock`), waiting up to a
+//! minute for another process's change; an entry removed is first renamed aside, so a reader
+//! sees it whole or not at all.
+//!
 //! Owns: naming, listing, registering, importing and removing entries. Must not touch: the
 //! model folder's format (`scene_model`).
 
@@ -141,6 +145,7 @@ impl Zoo {
     /// after checking every file against its manifest.
     pub fn register(&self, from: &Path, name: &str) -> Result<PathBuf> {
         check_name(name)?;
+        let _lock = self.lock()?;
         let m = scene_model::read_manifest(from)?;
         scene_model::verify_files(from, &m)?;
         let to = self.dir.join(name);
@@ -170,8 +175,17 @@ impl Zoo {
         if !d.is_dir() {
             bail!("{}: no model '{name}' in the zoo", self.dir.display());
         }
-        std::fs::remove_dir_all(&d)
-            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", d.display()))
+        let _lock = self.lock()?;
+        let aside = crate::output::sibling(&d, "gone");
+        std::fs::rename(&d, &aside)
+            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", d.display()))?;
+        std::fs::remove_dir_all(&aside)
+            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", aside.display()))
+    }
+
+    /// The zoo's lock, waiting up to a minute for another process's change to end.
+    fn lock(&self) -> Result<crate::lock::DirLock> {
+        crate::lock::DirLock::acquire_within(&self.dir, std::time::Duration::from_secs(60))
     }
 }
 

@@ -68,10 +68,10 @@ pub fn bake_cached(
     cfg: &BakeConfig,
     show_progress: bool,
 ) -> anyhow::Result<(Baked, bool)> {
-    let key = crate::cache::cache_key(ds, cfg);
+    let key = crate::cache::cache_key(ds, cfg)?;
     let path = out.join("cache").join("shadings.bin");
     let (w, h) = (ds.train.width, ds.train.height);
-    if let Some(shadings) = crate::cache::load(&path, key, ds.train.views.len(), w, h)? {
+    if let Some(shadings) = crate::cache::load_or_discard(&path, key, ds.train.views.len(), w, h)? {
         let hits = cast_split(accel, &ds.mesh, &ds.train);
         let views: Vec<BakeView> = train_views(&ds.train, &hits);
         let light_field = build_light_field(&views, cfg.voxel_res);

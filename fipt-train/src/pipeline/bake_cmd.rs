@@ -1,6 +1,11 @@
 //! `fipt-train bake`: the bake alone, with cache, EXR/PNG outputs and, where the scene has
 //! ground-truth materials, the check that the factorised render reproduces the photos.
 //!
+//! The outputs are complete or absent: OUT is locked against a second writer, `shading/` is
+//! written into a staged folder that replaces the old one whole, and `bake.json` (written last,
+//! removed before anything else is replaced) marks a complete set. Ctrl-C stops the bake itself
+//! (nothing of it is written); once the outputs are being written they are finished first.
+//!
 //! Owns: the command's outputs (`bake.json`, previews). Must not touch: the estimators.
 
 use super::bake;
@@ -18,6 +23,8 @@ use std::time::Instant;
 /// Bakes the scene's training views into `out` and writes `out/bake.json`.
 pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<BakeReport> {
     let t0 = Instant::now();
+    let _lock = crate::lock::DirLock::acquire(out)?;
+    crate::pipeline::checkpoint::remove_stale_tmp(out);
     let opts = LoadOptions {
         maps: image_metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
@@ -26,25 +33,39 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
     let accel = Accel::build(&ds.mesh);
     let bake_cfg = cfg.bake_config();
     let t1 = Instant::now();
-    let (baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet)?;
+    let (baked, cached) = bake::bake_cached(out, &ds, &accel, &bake_cfg, !quiet).map_err(|e| {
+        crate::interrupt::reword(e, || {
+            format!(
+                "interrupted during the bake; {} is as it was",
+                out.display()
+            )
+        })
+    })?;
     let bake_s = t1.elapsed().as_secs_f64();
     let (w, h) = (ds.train.width, ds.train.height);
-    let shading_dir = out.join("shading");
-    cache::write_exrs(&shading_dir, w, h, &baked.shadings)?;
-    for (k, s) in baked.shadings.iter().enumerate() {
-        let ld: Vec<f32> = (0..w * h)
-            .flat_map(|p| ShadingLayout::pixel(s, p)[ShadingLayout::LD].to_vec())
-            .collect();
-        write_png(
-            &shading_dir
-                .join("preview")
-                .join(format!("{k:03}_diffuse.png")),
-            w,
-            h,
-            &ld,
-            1.0,
-        )?;
+    // From here on the old set is replaced: first its marker goes.
+    let marker = out.join("bake.json");
+    if marker.exists() {
+        std::fs::remove_file(&marker)
+            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", marker.display()))?;
     }
+    crate::output::staged_dir(&out.join("shading"), |dir| {
+        cache::write_exrs(dir, w, h, &baked.shadings)?;
+        for (k, s) in baked.shadings.iter().enumerate() {
+            let ld: Vec<f32> = (0..w * h)
+                .flat_map(|p| ShadingLayout::pixel(s, p)[ShadingLayout::LD].to_vec())
+                .collect();
+            write_png(
+                &dir.join("preview").join(format!("{k:03}_diffuse.png")),
+                w,
+                h,
+                &ld,
+                1.0,
+            )?;
+        }
+        Ok(())
+    })?;
+    remove_view_pngs(out)?;
     let scores: Vec<Option<image_metrics::GtRenderPsnr>> = ds
         .train
         .views
@@ -123,6 +144,30 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
         gt_render_psnr: gt,
         config: bake_cfg,
     };
-    write_json(&out.join("bake.json"), &report)?;
+    write_json(&marker, &report)?;
+    // A Ctrl-C while the outputs were written ends the command now that they are whole.
+    crate::interrupt::check(|| {
+        format!(
+            "interrupted after the bake's outputs were complete in {}",
+            out.display()
+        )
+    })?;
     Ok(report)
+}
+
+/// Removes the `bake_{error,render,photo}_viewNNN.png` of an earlier bake (whose worst view may
+/// differ from this one's).
+fn remove_view_pngs(out: &Path) -> Result<()> {
+    for e in std::fs::read_dir(out).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let old = ["bake_error_view", "bake_render_view", "bake_photo_view"]
+            .iter()
+            .any(|p| name.starts_with(p))
+            && name.ends_with(".png");
+        if old {
+            std::fs::remove_file(e.path())
+                .map_err(|err| anyhow::anyhow!("{}: cannot remove: {err}", e.path().display()))?;
+        }
+    }
+    Ok(())
 }

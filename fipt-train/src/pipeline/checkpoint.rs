@@ -8,7 +8,9 @@
 //! - `round{r}/step{s:07}/`: the fit of round `r` after `s` steps (`Trainer::save_state` plus
 //!   `FitProgress::save`), saved every `checkpoint.every_steps` steps, on Ctrl-C, and when the
 //!   fit ends; only the newest stays. Each folder is written under a `.tmp` name and renamed,
-//!   so it is complete or absent. After the fit's basin hop (`pipeline::hop`) its last folder
+//!   so it is complete or absent, and sealed by `manifest.json` (every file's size and XXH3-64
+//!   content hash), checked before a state is restored: a damaged folder is named and discarded
+//!   with the rounds after it, which are then fitted again. After the fit's basin hop (`pipeline::hop`) its last folder
 //!   is written again with the hopped state and the hop's report (`save_again`).
 //! - `round{r}/emitters.json` (round 0) and `round{r}/report.json` (every round but the last):
 //!   what follows a finished fit.
@@ -26,14 +28,74 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// Bumped whenever this folder's layout or a saved file's format changes.
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 const KEY_FILE: &str = "key.json";
+/// The seal of a step folder: every other file's size and content hash.
+pub const MANIFEST_FILE: &str = "manifest.json";
+
+/// `MANIFEST_FILE`: file name → (bytes, XXH3-64 of the content, hex).
+#[derive(Debug, Default, Serialize, Deserialize)]
+struct StepManifest {
+    files: std::collections::BTreeMap<String, (u64, String)>,
+}
+
+/// Size and XXH3-64 (hex) of the file at `p`.
+fn file_hash(p: &Path) -> Result<(u64, String)> {
+    let bytes = fipt_core::io::read_bytes(p)?;
+    let h = xxhash_rust::xxh3::xxh3_64(&bytes);
+    Ok((bytes.len() as u64, format!("{h:016x}")))
+}
+
+/// Writes the manifest of the step folder `dir` (every file in it).
+fn seal(dir: &Path) -> Result<()> {
+    let mut m = StepManifest::default();
+    for e in std::fs::read_dir(dir).with_context(|| format!("{}: cannot list", dir.display()))? {
+        let e = e.with_context(|| format!("{}: cannot list", dir.display()))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name != MANIFEST_FILE && e.file_type().is_ok_and(|t| t.is_file()) {
+            m.files.insert(name, file_hash(&e.path())?);
+        }
+    }
+    crate::output::write_json(&dir.join(MANIFEST_FILE), &m)
+}
+
+/// Checks the step folder `dir` against its manifest: an error naming the first file that is
+/// missing, of another size or of another content hash (or the manifest itself).
+pub fn verify_step(dir: &Path) -> Result<()> {
+    let mp = dir.join(MANIFEST_FILE);
+    let m: StepManifest = serde_json::from_str(&fipt_core::io::read_text(&mp)?)
+        .map_err(|e| anyhow::anyhow!("{}: damaged: {e}", mp.display()))?;
+    if m.files.is_empty() {
+        anyhow::bail!("{}: damaged: lists no file", mp.display());
+    }
+    for (name, want) in &m.files {
+        let p = dir.join(name);
+        let got = file_hash(&p)?;
+        if got.0 != want.0 {
+            anyhow::bail!(
+                "{}: damaged: {} bytes, {} says {}",
+                p.display(),
+                got.0,
+                mp.display(),
+                want.0
+            );
+        }
+        if got.1 != want.1 {
+            anyhow::bail!(
+                "{}: damaged: its content hash differs from the one in {}",
+                p.display(),
+                mp.display()
+            );
+        }
+    }
+    Ok(())
+}
 
 /// What every saved state depends on.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunKey {
     pub format: u32,
-    /// FNV-64 of the running executable, hex.
+    /// XXH3-64 of the running executable, hex.
     pub program: String,
     /// FNV-64 of the scene as loaded, hex.
     pub scene: String,
@@ -44,8 +106,13 @@ pub struct RunKey {
 }
 
 impl RunKey {
-    pub fn new(program: u64, scene: u64, cfg: &crate::config::Config, oracle: bool) -> Self {
-        let mut c = serde_json::to_value(cfg).unwrap_or_default();
+    pub fn new(
+        program: u64,
+        scene: u64,
+        cfg: &crate::config::Config,
+        oracle: bool,
+    ) -> Result<Self> {
+        let mut c = serde_json::to_value(cfg)?;
         if let Some(m) = c.as_object_mut() {
             for k in ["render", "checkpoint"] {
                 m.remove(k);
@@ -55,12 +122,12 @@ impl RunKey {
             }
             m.insert("oracle".into(), oracle.into());
         }
-        Self {
+        Ok(Self {
             format: FORMAT,
             program: format!("{program:016x}"),
             scene: format!("{scene:016x}"),
             config: c,
-        }
+        })
     }
 
     /// Why `self` (saved) does not hold for `now`, in words; None when it does.
@@ -112,32 +179,38 @@ fn json_diff(a: &serde_json::Value, b: &serde_json::Value, at: &str, out: &mut V
     }
 }
 
-/// FNV-64 of the running executable: a different build is a different program.
+/// XXH3-64 of the running executable: a different build is a different program. When the
+/// executable cannot be read, a warning says so and the hash is this process's own (time and
+/// pid), so no saved state is taken for this build's and this run's is taken by no other.
 pub fn program_hash() -> u64 {
     static HASH: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    *HASH.get_or_init(|| {
-        let mut h = fipt_core::io::Fnv64::default();
-        h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
-        if let Some(bytes) = std::env::current_exe()
-            .ok()
-            .and_then(|p| std::fs::read(p).ok())
-        {
-            h.bytes(&bytes);
+    *HASH.get_or_init(|| match std::env::current_exe().and_then(std::fs::read) {
+        Ok(bytes) => xxhash_rust::xxh3::xxh3_64(&bytes),
+        Err(e) => {
+            eprintln!(
+                "warning: cannot read the running executable to key the checkpoints ({e}): \
+                     this run's saved state will not be resumed by another process"
+            );
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64);
+            xxhash_rust::xxh3::xxh3_64(
+                &[
+                    nanos.to_le_bytes(),
+                    (std::process::id() as u64).to_le_bytes(),
+                ]
+                .concat(),
+            )
         }
-        h.finish()
     })
 }
 
 /// FNV-64 of a loaded scene: the bake's key (mesh, cameras, photos, bake config), its
 /// `scene_meta.json` (the parts of the scores) and every map of every split.
-pub fn scene_hash(ds: &fipt_core::scene::Dataset, bake_key: u64) -> u64 {
+pub fn scene_hash(ds: &fipt_core::scene::Dataset, bake_key: u64) -> Result<u64> {
     let mut h = fipt_core::io::Fnv64::default();
     h.bytes(&bake_key.to_le_bytes());
-    h.bytes(
-        serde_json::to_string(&ds.meta)
-            .unwrap_or_default()
-            .as_bytes(),
-    );
+    h.bytes(serde_json::to_string(&ds.meta)?.as_bytes());
     for split in ds.splits() {
         h.bytes(split.name.as_bytes());
         for v in &split.views {
@@ -147,7 +220,7 @@ pub fn scene_hash(ds: &fipt_core::scene::Dataset, bake_key: u64) -> u64 {
             }
         }
     }
-    h.finish()
+    Ok(h.finish())
 }
 
 /// The checkpoint folder of one run.
@@ -221,14 +294,15 @@ impl Checkpoints {
 
     /// Whether `round`'s saved fit has also run its basin hop (`TrainLog::hop`).
     pub fn hop_done(&self, round: usize) -> bool {
-        self.newest(round)
-            .is_some_and(|(_, d)| FitProgress::load_log(&d).is_ok_and(|l| l.hop.is_some()))
+        self.newest(round).is_some_and(|(_, d)| {
+            verify_step(&d).is_ok() && FitProgress::load_log(&d).is_ok_and(|l| l.hop.is_some())
+        })
     }
 
     /// Whether `round`'s fit has a saved state that has run every step.
     pub fn fit_done(&self, round: usize) -> bool {
         self.newest(round)
-            .is_some_and(|(_, d)| FitProgress::saved_done(&d))
+            .is_some_and(|(_, d)| verify_step(&d).is_ok() && FitProgress::saved_done(&d))
     }
 
     /// Removes the saved states of `round` and of every round after it.
@@ -261,6 +335,7 @@ impl Checkpoints {
         let Some((_, dir)) = self.newest(round) else {
             return Ok(None);
         };
+        verify_step(&dir)?;
         let progress = FitProgress::load(&dir, fit.store, fit.run.mode, fit.run.schedule)?;
         let trainer = Trainer::restore(fit.cfg.clone(), fit.device, fit.seed, &dir)
             .map_err(anyhow::Error::msg)?;
@@ -279,6 +354,7 @@ impl Checkpoints {
         let (_, dir) = self
             .newest(round)
             .with_context(|| format!("{}: no saved fit", self.round_dir(round).display()))?;
+        verify_step(&dir)?;
         let trainer =
             Trainer::restore(cfg.clone(), device, seed, &dir).map_err(anyhow::Error::msg)?;
         let log = FitProgress::load_log(&dir)?;
@@ -319,6 +395,7 @@ impl Checkpoints {
             .with_context(|| format!("{}: cannot create", tmp.display()))?;
         tr.save_state(&tmp).map_err(anyhow::Error::msg)?;
         p.save(&tmp)?;
+        seal(&tmp)?;
         let prev = rd.join(format!("{name}.prev"));
         if fin.exists() {
             remove_dir_aside(&prev);
@@ -431,6 +508,11 @@ pub fn remove_stale_tmp(out: &Path) {
     clean(out, false);
     clean(&out.join("cache"), false);
     clean(&out.join("checkpoint"), true);
+}
+
+/// Removes the temporaries a killed process left directly in `dir` (`stale_tmp`).
+pub fn remove_stale_tmp_in(dir: &Path) {
+    clean(dir, false);
 }
 
 fn restore_set_aside(out: &Path) {
@@ -624,18 +706,18 @@ mod tests {
     #[test]
     fn key_mismatch_names_what_changed() {
         let cfg = crate::config::Config::default();
-        let a = RunKey::new(1, 2, &cfg, false);
+        let a = RunKey::new(1, 2, &cfg, false).unwrap();
         assert_eq!(a.mismatch(&a), None);
         let mut c2 = cfg.clone();
         c2.train.lr *= 2.0;
         c2.refine.rounds += 1;
         c2.render.spp += 1;
-        let b = RunKey::new(1, 2, &c2, false);
+        let b = RunKey::new(1, 2, &c2, false).unwrap();
         assert_eq!(
             a.mismatch(&b).as_deref(),
             Some("the config changed at train.lr")
         );
-        let c = RunKey::new(3, 4, &cfg, true);
+        let c = RunKey::new(3, 4, &cfg, true).unwrap();
         let why = a.mismatch(&c).unwrap();
         assert!(
             why.contains("program") && why.contains("scene") && why.contains("oracle"),
@@ -697,8 +779,8 @@ mod tests {
         })]
 
         /// A saved fit state with one file damaged (truncated, a byte flipped, a huge size
-        /// written): restoring it never panics nor allocates from a size field; a truncated
-        /// file is refused with its name in the message.
+        /// written): restoring it never panics nor allocates from a size field; every damaged
+        /// file is refused with its name in the message (the manifest's content hashes).
         #[test]
         fn damaged_state_is_refused_by_name(file in 0..STATE_FILES.len(), d in damage()) {
             use crate::pipeline::test_data::{toy_fit, toy_store};
@@ -730,10 +812,13 @@ mod tests {
             let _ = std::fs::remove_dir_all(&case);
             let (src, dst) = (good.join("round0/step0000003"), case.join("round0/step0000003"));
             std::fs::create_dir_all(&dst).unwrap();
-            for f in STATE_FILES {
+            let mut changed = false;
+            for f in STATE_FILES.iter().chain(&[MANIFEST_FILE]) {
                 let mut b = std::fs::read(src.join(f)).unwrap();
-                if f == STATE_FILES[file] {
+                if *f == STATE_FILES[file] {
+                    let before = b.clone();
                     apply(&mut b, &d);
+                    changed = b != before;
                 }
                 std::fs::write(dst.join(f), b).unwrap();
             }
@@ -744,11 +829,12 @@ mod tests {
             }));
             std::fs::remove_dir_all(&case).unwrap();
             proptest::prop_assert!(r.is_ok(), "panicked on {} {:?}", STATE_FILES[file], d);
-            if let (Damage::Truncate(_), Ok(res)) = (&d, r) {
+            // Every change is caught by the manifest's content hashes, and the file named.
+            if let (true, Ok(res)) = (changed, r) {
                 let e = res.err().map(|e| format!("{e:#}"));
                 proptest::prop_assert!(
-                    e.as_deref().is_some_and(|e| e.contains(STATE_FILES[file])),
-                    "{} truncated: {:?}", STATE_FILES[file], e
+                    e.as_deref().is_some_and(|e| e.contains(STATE_FILES[file]) && e.contains("damaged")),
+                    "{} {:?}: {:?}", STATE_FILES[file], d, e
                 );
             }
         }

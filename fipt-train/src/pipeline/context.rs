@@ -46,10 +46,13 @@ pub struct RunContext<'a> {
     pub bake_key: u64,
     pub times: StageTimes,
     clock: Instant,
+    /// OUT's lock, held for the run's life (`crate::lock`).
+    _lock: crate::lock::DirLock,
 }
 
 impl<'a> RunContext<'a> {
-    /// Loads the scene and builds its acceleration structure.
+    /// Locks OUT against a second writer, loads the scene and builds its acceleration
+    /// structure.
     pub fn load(
         scene: &'a Path,
         out: &'a Path,
@@ -57,10 +60,11 @@ impl<'a> RunContext<'a> {
         opts: &'a RunOptions,
     ) -> Result<Self> {
         let clock = Instant::now();
+        let lock = crate::lock::DirLock::acquire(out)?;
         let ds = Dataset::load(scene, &load_opts())?;
         let accel = Accel::build(&ds.mesh);
         let bake_cfg = cfg.bake_config();
-        let bake_key = crate::cache::cache_key(&ds, &bake_cfg);
+        let bake_key = crate::cache::cache_key(&ds, &bake_cfg)?;
         Ok(Self {
             scene,
             out,
@@ -73,6 +77,7 @@ impl<'a> RunContext<'a> {
             bake_key,
             times: StageTimes::default(),
             clock,
+            _lock: lock,
         })
     }
 

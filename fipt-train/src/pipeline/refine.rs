@@ -38,7 +38,7 @@ pub fn refine_key(
     model: &FiptModel,
     emitters: &[Emitter],
     cfg: &RefineConfig,
-) -> u64 {
+) -> anyhow::Result<u64> {
     let mut h = Fnv64::default();
     h.bytes(&bake_key.to_le_bytes());
     h.bytes(&REFINE_CODE_VERSION.to_le_bytes());
@@ -50,9 +50,9 @@ pub fn refine_key(
         h.bytes(&e.triangle.to_le_bytes());
         h.f32s(&e.radiance);
     }
-    h.bytes(serde_json::to_string(cfg).unwrap_or_default().as_bytes());
+    h.bytes(serde_json::to_string(cfg)?.as_bytes());
     h.bytes(&cfg.seed.to_le_bytes());
-    h.finish()
+    Ok(h.finish())
 }
 
 /// Bumped whenever the refinement's maths changes.
@@ -214,7 +214,7 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
     let key = h.finish();
     let path = ctx.out.join("cache").join("oracle.bin");
     let (w, hh) = (ds.train.width, ds.train.height);
-    if let Some(s) = crate::cache::load(&path, key, ds.train.views.len(), w, hh)? {
+    if let Some(s) = crate::cache::load_or_discard(&path, key, ds.train.views.len(), w, hh)? {
         return Ok(s);
     }
     let all: Vec<usize> = (0..ds.train.views.len()).collect();

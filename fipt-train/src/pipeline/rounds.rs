@@ -167,11 +167,11 @@ impl Rounds {
         let (tr_prev, _) = self.prev.as_ref().context("no previous round")?;
         let em = self.emitters.as_ref().context("no emitters")?;
         let rcfg = ctx.cfg.refine_paths(r);
-        let key = refine::refine_key(ctx.bake_key, &tr_prev.model, em, &rcfg);
+        let key = refine::refine_key(ctx.bake_key, &tr_prev.model, em, &rcfg)?;
         let path = ctx.out.join("cache").join(format!("refine{r}.bin"));
         let (w, h) = (ctx.ds.train.width, ctx.ds.train.height);
         let (shadings, stats) =
-            match crate::cache::load(&path, key, ctx.ds.train.views.len(), w, h)? {
+            match crate::cache::load_or_discard(&path, key, ctx.ds.train.views.len(), w, h)? {
                 Some(s) => (s, None),
                 None => {
                     let all: Vec<usize> = (0..ctx.ds.train.views.len()).collect();
@@ -435,10 +435,10 @@ pub fn run_rounds(
 pub fn open_checkpoints(ctx: &RunContext) -> Result<Checkpoints> {
     let run_key = checkpoint::RunKey::new(
         checkpoint::program_hash(),
-        checkpoint::scene_hash(&ctx.ds, ctx.bake_key),
+        checkpoint::scene_hash(&ctx.ds, ctx.bake_key)?,
         ctx.cfg,
         ctx.opts.oracle,
-    );
+    )?;
     let (ck, discarded) = Checkpoints::open(ctx.out, &run_key, ctx.cfg.checkpoint.every_steps)?;
     if let Some(d) = discarded {
         eprintln!("{d}");
