@@ -222,14 +222,33 @@ fn malformed_meshes() {
 
 #[test]
 fn real_and_nerfstudio_layouts() {
-    // FIPT real layout: cam.txt announces 2 cameras, K_list.txt has 1.
-    let d = valid_scene("real");
-    std::fs::rename(d.join("train/Image"), d.join("Image")).unwrap();
-    std::fs::remove_dir_all(d.join("train")).unwrap();
-    let cam = "2\n1 1.2 1\n2.5 1 2\n0 1 0\n4 1.5 3\n2.5 1 2\n0 1 0\n";
-    std::fs::write(d.join("cam.txt"), cam).unwrap();
-    std::fs::write(d.join("K_list.txt"), "1\n10 0 8\n0 10 6\n0 0 1\n").unwrap();
+    // FIPT real layout with two cameras in cam.txt and the intrinsics `k`.
+    let real = |name: &str, k: &str| {
+        let d = valid_scene(name);
+        std::fs::rename(d.join("train/Image"), d.join("Image")).unwrap();
+        std::fs::remove_dir_all(d.join("train")).unwrap();
+        let cam = "2\n1 1.2 1\n2.5 1 2\n0 1 0\n4 1.5 3\n2.5 1 2\n0 1 0\n";
+        std::fs::write(d.join("cam.txt"), cam).unwrap();
+        std::fs::write(d.join("K_list.txt"), k).unwrap();
+        d
+    };
+    // K_list.txt has 1 camera.
+    let d = real("real", "1\n10 0 8\n0 10 6\n0 0 1\n");
     assert_fails(&d, &["K_list.txt", "1 intrinsics", "2 cameras"]);
+    // A focal length of 0 (rays at infinity).
+    let d = real(
+        "real-fx",
+        "2\n10 0 8\n0 10 6\n0 0 1\n0 0 8\n0 10 6\n0 0 1\n",
+    );
+    assert_fails(
+        &d,
+        &[
+            "K_list.txt",
+            "camera 1",
+            "focal lengths",
+            "out of their range",
+        ],
+    );
     // nerfstudio: a frame without focal length.
     let d = valid_scene("ns");
     std::fs::rename(d.join("train/Image"), d.join("images")).unwrap();
@@ -238,4 +257,47 @@ fn real_and_nerfstudio_layouts() {
         "frames": [{"file_path": "images/000_0001.exr", "transform_matrix": cameras()[0].to_fipt_c2w()}]});
     std::fs::write(d.join("transforms.json"), js.to_string()).unwrap();
     assert_fails(&d, &["transforms.json", "frame 0", "fl_x"]);
+}
+
+/// Values out of range in the files beside the photos, through `check`: the file, the field
+/// and the range are named (`tests/inputs.rs` walks every field through its loader).
+#[test]
+fn values_out_of_range_beside_the_photos() {
+    // A roughness of 1.5 in scene_meta.json.
+    let d = valid_scene("meta-range");
+    let meta = serde_json::json!({"parts": [{"id": 0, "name": "room", "triangles": [0, 1],
+        "material": {"base_color": [0.5, 0.5, 0.5], "roughness": 1.5, "metallic": 0.0}}]});
+    std::fs::write(d.join("scene_meta.json"), meta.to_string()).unwrap();
+    assert_fails(
+        &d,
+        &[
+            "scene_meta.json",
+            "parts[0].material.roughness",
+            "out of its range [0, 1]",
+        ],
+    );
+    // A part's triangles past the mesh.
+    let d = valid_scene("meta-tris");
+    let meta = serde_json::json!({"parts": [{"id": 0, "name": "room", "triangles": [0, 100000],
+        "material": {"base_color": [0.5, 0.5, 0.5], "roughness": 0.5, "metallic": 0.0}}]});
+    std::fs::write(d.join("scene_meta.json"), meta.to_string()).unwrap();
+    assert_fails(
+        &d,
+        &[
+            "scene_meta.json",
+            "parts[0].triangles",
+            "runs past them",
+            "scene.obj",
+        ],
+    );
+    // A camera matrix with a zero axis.
+    let d = valid_scene("singular");
+    let t = d.join("train/transforms.json");
+    let mut js: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&t).unwrap()).unwrap();
+    for r in 0..3 {
+        js["frames"][1]["transform_matrix"][r][1] = serde_json::json!(0.0);
+    }
+    std::fs::write(&t, js.to_string()).unwrap();
+    assert_fails(&d, &["transforms.json", "frame 1", "degenerate axes"]);
 }

@@ -7,6 +7,7 @@
 pub mod brdf;
 pub mod io;
 pub mod model;
+pub mod ranges;
 pub mod rng;
 pub mod scene;
 pub mod shading;

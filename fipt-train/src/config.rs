@@ -567,13 +567,17 @@ fn check(ok: bool, key: &str, what: &str) -> Result<()> {
 }
 
 impl Config {
-    /// Parses JSON text; errors name the offending key.
+    /// Parses JSON text; errors name the offending key (and, for a number out of its range,
+    /// the range: `fipt_core::ranges`).
     pub fn from_json(text: &str) -> Result<Config> {
         let de = &mut serde_json::Deserializer::from_str(text);
         let cfg: Config = serde_path_to_error::deserialize(de).map_err(|e| {
             let path = e.path().to_string();
             anyhow::anyhow!("{path}: {}", e.into_inner())
         })?;
+        let v: serde_json::Value = serde_json::from_str(text)?;
+        fipt_core::ranges::check_value(fipt_core::ranges::Kind::Config, &v)
+            .map_err(anyhow::Error::msg)?;
         cfg.validate()?;
         Ok(cfg)
     }

@@ -532,8 +532,7 @@ pub fn demo(out: &Path, quiet: bool) -> Result<PathBuf> {
             println!("demo scene from the cache: {}", scene.display());
         }
     }
-    let cfg: crate::config::Config =
-        serde_json::from_str(DEMO_CONFIG).context("configs/demo.json: malformed")?;
+    let cfg = crate::config::Config::from_json(DEMO_CONFIG).context("configs/demo.json")?;
     let run_out = out.join("run");
     let opts = crate::pipeline::RunOptions {
         quiet,

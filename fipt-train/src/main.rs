@@ -162,7 +162,7 @@ enum Cmd {
         #[arg(long, default_value = "out/suite")]
         out: PathBuf,
         /// Number of scenes (seeds FIRST_SEED ..).
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, default_value_t = 8, value_parser = flag_range(1, 1000))]
         scenes: usize,
         #[arg(long, default_value_t = 0)]
         first_seed: u64,
@@ -223,21 +223,21 @@ struct RenderArgs {
     off_black: bool,
     /// Models: fixed sub-pixel positions per pixel (a square; 0: continuous jitter), so
     /// the exact field is queried once per position, not per sample.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = flag_range(0, 4096))]
     pixel_positions: usize,
     /// Which cameras: train or val.
     #[arg(long, default_value = "val")]
     split: String,
     /// Only these views (comma-separated; default all).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = flag_range(0, 1 << 20))]
     views: Vec<usize>,
     /// New cameras from a transforms.json (FIPT or nerfstudio) instead of the split's.
     #[arg(long)]
     cameras: Option<PathBuf>,
-    #[arg(long, default_value_t = 512)]
+    #[arg(long, default_value_t = 512, value_parser = flag_range(1, 65536))]
     spp: usize,
     /// Maximum path length in segments (Mitsuba's max_depth).
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = 7, value_parser = flag_range(1, 64))]
     max_depth: usize,
     /// relight.json: emitters off or rescaled (part names or "all") and new emitters
     /// added; renders go to Relight/.
@@ -331,14 +331,14 @@ enum BenchCmd {
         #[arg(long)]
         json: bool,
         /// Number of incoherent rays.
-        #[arg(long, default_value_t = 4 << 20)]
+        #[arg(long, default_value_t = 4 << 20, value_parser = flag_range(1, 1 << 28))]
         rays: usize,
         /// Timed repetitions per configuration (the median is reported).
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = flag_range(1, 1000))]
         reps: usize,
         /// Split every triangle into 4^K by midpoint subdivision (the same surface), as the
         /// peer script's `--mesh-scale`: throughput against triangle count.
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=6))]
         mesh_scale: u32,
     },
     /// Paths and rays per second of the path tracer on a scene's true materials, 1 and 2 threads.
@@ -347,11 +347,11 @@ enum BenchCmd {
         scene: PathBuf,
         #[arg(long)]
         json: bool,
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = 16, value_parser = flag_range(1, 65536))]
         spp: usize,
-        #[arg(long, default_value_t = 2)]
+        #[arg(long, default_value_t = 2, value_parser = flag_range(1, 1000))]
         views: usize,
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = flag_range(1, 1000))]
         reps: usize,
     },
     /// The refinement of a few train views of a finished run with the voxel material cache
@@ -364,7 +364,7 @@ enum BenchCmd {
         run: PathBuf,
         #[arg(long)]
         json: bool,
-        #[arg(long, default_value_t = 2)]
+        #[arg(long, default_value_t = 2, value_parser = flag_range(1, 1000))]
         views: usize,
     },
     /// Material queries per second of a scene model's learned field: exact and through the
@@ -379,21 +379,26 @@ enum BenchCmd {
         #[arg(long)]
         json: bool,
         /// Points per query (the path tracer's wavefronts hold up to 2^18).
-        #[arg(long, default_value_t = 1 << 18)]
+        #[arg(long, default_value_t = 1 << 18, value_parser = flag_range(1, 1 << 24))]
         batch: usize,
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = flag_range(1, 1000))]
         reps: usize,
     },
     /// Secondary rays per second of the bake on a built-in scene.
     Bake {
         #[arg(long)]
         json: bool,
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 3, value_parser = flag_range(1, 1000))]
         reps: usize,
     },
     /// Median time of one training step of the fit (reference and CPU-sized models, part and
     /// semantic losses, shuffled batches of a realistic pixel store).
     Step(fipt_train::bench::step::StepArgs),
+}
+
+/// A flag's allowed integers: clap refuses any other value naming the flag and the range.
+pub fn flag_range(lo: u64, hi: u64) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(lo..=hi)
 }
 
 fn main() {

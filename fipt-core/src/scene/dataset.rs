@@ -244,7 +244,25 @@ impl Dataset {
         };
         let meta_path = root.join("scene_meta.json");
         let meta = if meta_path.exists() {
-            Some(SceneMeta::load(&meta_path)?)
+            let m = SceneMeta::load(&meta_path)?;
+            let ntri = mesh.num_triangles();
+            if let Some((k, p)) = m
+                .parts
+                .iter()
+                .enumerate()
+                .find(|(_, p)| p.triangles[1] > ntri)
+            {
+                return Err(FileError::new(
+                    root.join("scene.obj"),
+                    format!(
+                        "has {ntri} triangles: {} parts[{k}].triangles [{}, {}] runs past them",
+                        meta_path.display(),
+                        p.triangles[0],
+                        p.triangles[1],
+                    ),
+                ));
+            }
+            Some(m)
         } else {
             None
         };
@@ -275,9 +293,14 @@ fn first_views(split: &Split, n: usize, name: &str) -> Split {
     }
 }
 
-fn parse_json(path: &Path) -> Result<Value> {
+/// Reads a `transforms.json` (either layout, or `render --cameras`), its numbers checked
+/// against their ranges (`crate::ranges`).
+fn parse_transforms(path: &Path) -> Result<Value> {
     let text = read_text(path)?;
-    serde_json::from_str(&text).map_err(|e| FileError::new(path, format!("malformed JSON: {e}")))
+    let v = serde_json::from_str(&text)
+        .map_err(|e| FileError::new(path, format!("malformed JSON: {e}")))?;
+    crate::ranges::check(crate::ranges::Kind::Transforms, &v, path)?;
+    Ok(v)
 }
 
 fn json_f64(v: &Value, key: &str, path: &Path) -> Result<f64> {
@@ -309,6 +332,14 @@ fn json_matrix4(v: &Value, path: &Path, k: usize) -> Result<[[f64; 4]; 4]> {
     }
     if m.iter().flatten().any(|x| !x.is_finite()) {
         return Err(bad());
+    }
+    // The camera's axes (the first three columns) must span space.
+    let col = |j: usize| glam::DVec3::new(m[0][j], m[1][j], m[2][j]);
+    if col(0).cross(col(1)).dot(col(2)).abs() < 1e-12 {
+        return Err(FileError::new(
+            path,
+            format!("frame {k}: 'transform_matrix' has degenerate axes (its 3x3 part is singular)"),
+        ));
     }
     Ok(m)
 }
@@ -479,7 +510,7 @@ fn load_synthetic_split(
 ) -> Result<Split> {
     let dir = root.join(name);
     let tpath = dir.join("transforms.json");
-    let json = parse_json(&tpath)?;
+    let json = parse_transforms(&tpath)?;
     let fov = json_f64(&json, "camera_angle_x", &tpath)?;
     if !(fov > 0.0 && fov < std::f64::consts::PI) {
         return Err(FileError::new(
@@ -627,6 +658,15 @@ fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
                 ));
             }
             let kmat = [ks[3 * k], ks[3 * k + 1], ks[3 * k + 2]];
+            let (fx, fy) = (kmat[0][0], kmat[1][1]);
+            if !(fx > 0.0 && fx <= 1e6 && fy > 0.0 && fy <= 1e6) {
+                return Err(FileError::new(
+                    &k_path,
+                    format!(
+                        "camera {k}: focal lengths fx = {fx}, fy = {fy} (K[0][0], K[1][1]) are out of their range (0, 1e6] pixels"
+                    ),
+                ));
+            }
             let maps = load_maps(root, k, opts, size)?;
             Ok(View {
                 index: k,
@@ -646,7 +686,7 @@ fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
 
 fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
     let tpath = root.join("transforms.json");
-    let json = parse_json(&tpath)?;
+    let json = parse_transforms(&tpath)?;
     let frames = frames_of(&json, &tpath)?;
     let get = |f: &Value, key: &str| f.get(key).or_else(|| json.get(key)).and_then(Value::as_f64);
     let views = frames
@@ -717,7 +757,7 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
 /// else the FIPT synthetic one (`camera_angle_x`, c2w columns left/up/forward) at `size` (the
 /// scene's image size) unless the file gives `w` and `h`.
 pub fn load_cameras(path: &Path, size: (usize, usize)) -> Result<Vec<Camera>> {
-    let json = parse_json(path)?;
+    let json = parse_transforms(path)?;
     let frames = frames_of(&json, path)?;
     let get = |f: &Value, key: &str| f.get(key).or_else(|| json.get(key)).and_then(Value::as_f64);
     let nerfstudio = frames.first().is_some_and(|f| get(f, "fl_x").is_some());

@@ -82,8 +82,11 @@ pub struct Inserted {
 /// Reads an insertion file; every error names the file and the object.
 pub fn load_insert(path: &Path) -> Result<Vec<Inserted>> {
     let text = read_text(path)?;
-    let f: InsertFile =
+    let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
+    crate::ranges::check(crate::ranges::Kind::Insert, &v, path)?;
+    let f: InsertFile =
+        serde_json::from_value(v).map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
     if f.objects.is_empty() {
         return Err(FileError::new(path, "no objects"));
     }

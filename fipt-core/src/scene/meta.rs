@@ -55,9 +55,30 @@ pub struct PartEmission {
 }
 
 impl SceneMeta {
+    /// Reads `scene_meta.json`: every number in its range (`crate::ranges`), every part's
+    /// triangle range ordered (`Dataset::load` checks it against the mesh).
     pub fn load(path: &Path) -> Result<SceneMeta> {
         let text = read_text(path)?;
-        serde_json::from_str(&text).map_err(|e| FileError::new(path, format!("bad JSON: {e}")))
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
+        crate::ranges::check(crate::ranges::Kind::SceneMeta, &v, path)?;
+        let m: SceneMeta = serde_json::from_value(v)
+            .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
+        if let Some((k, p)) = m
+            .parts
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.triangles[0] > p.triangles[1])
+        {
+            return Err(FileError::new(
+                path,
+                format!(
+                    "parts[{k}].triangles: [{}, {}] is not a range (start > end)",
+                    p.triangles[0], p.triangles[1]
+                ),
+            ));
+        }
+        Ok(m)
     }
 
     /// Ground-truth emitted radiance per triangle (0 for non-emitters).
@@ -126,7 +147,10 @@ impl Relight {
     /// and ≥ 0, every new triangle indexes its vertices, radiances are finite and ≥ 0.
     pub fn load(path: &Path, meta: Option<&SceneMeta>) -> Result<Relight> {
         let text = read_text(path)?;
-        let r: Relight = serde_json::from_str(&text)
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
+        crate::ranges::check(crate::ranges::Kind::Relight, &v, path)?;
+        let r: Relight = serde_json::from_value(v)
             .map_err(|e| FileError::new(path, format!("bad JSON: {e}")))?;
         for (key, name) in r
             .emitters_off
@@ -179,6 +203,16 @@ impl Relight {
                         "new emitter '{}': triangle {t:?} indexes past its {n} vertices",
                         e.name
                     ),
+                ));
+            }
+            let area = |t: &[u32; 3]| {
+                let p = t.map(|i| glam::Vec3::from(e.vertices[i as usize]));
+                (p[1] - p[0]).cross(p[2] - p[0]).length()
+            };
+            if let Some(t) = e.triangles.iter().find(|t| area(t) <= 0.0) {
+                return Err(FileError::new(
+                    path,
+                    format!("new emitter '{}': triangle {t:?} has no area", e.name),
                 ));
             }
             if e.radiance.iter().any(|c| !c.is_finite() || *c < 0.0)

@@ -110,10 +110,10 @@ pub struct StepArgs {
     pub backend: Vec<fipt_core::model::BackendKind>,
     #[arg(long)]
     pub json: bool,
-    #[arg(long, default_value_t = 8192)]
+    #[arg(long, default_value_t = 8192, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1 << 24))]
     pub batch: usize,
     /// Timed steps (after 2 warm-up steps).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100_000))]
     pub steps: usize,
     /// Also time the peers' `--cpu-config` sizes (16 levels, 2^16 entries, scale 1.3).
     #[arg(long)]

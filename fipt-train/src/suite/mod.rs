@@ -47,8 +47,15 @@ pub fn half(seed: u64) -> &'static str {
 /// Renders (or reuses) every scene, runs (or resumes, or reuses) every run, and writes
 /// `OUT/suite.json`.
 pub fn run_suite(job: &SuiteJob) -> Result<SuiteReport> {
+    let Some(end) = job.first_seed.checked_add(job.scenes as u64) else {
+        anyhow::bail!(
+            "--first-seed {} with --scenes {}: the seeds run past 2^64",
+            job.first_seed,
+            job.scenes
+        );
+    };
     let mut rows = Vec::new();
-    for seed in job.first_seed..job.first_seed + job.scenes as u64 {
+    for seed in job.first_seed..end {
         let scene = scene_folder(&job.out, seed, job.size, job.quiet)?;
         let out = job.out.join("runs").join(format!("suite-{seed:03}"));
         let t = std::time::Instant::now();
