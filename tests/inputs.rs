@@ -158,6 +158,7 @@ fn every_range_is_enforced_by_its_loader() {
     let dir = scratch("ranges");
     let mut cases = 0;
     for kind in Kind::ALL {
+        let before = cases;
         let good = example(kind);
         let path = dir.join(format!("{kind:?}.json"));
         load(kind, &path, &good.to_string())
@@ -183,6 +184,11 @@ fn every_range_is_enforced_by_its_loader() {
                 cases += 1;
             }
         }
+        let fields = FIELDS.iter().filter(|f| f.kind == kind).count();
+        eprintln!(
+            "{kind:?}: {fields} fields, {} values refused",
+            cases - before
+        );
     }
     eprintln!("{cases} out-of-range values refused");
     assert!(cases >= 400, "{cases}");

@@ -19,6 +19,7 @@ use fipt_core::model::{
     EmissionMaskConfig, FiptModel, HashGridConfig, MaterialFieldConfig, ModelSpec,
 };
 use fipt_core::scene::dataset::{Layout, LoadOptions, MapKind, load_cameras};
+use fipt_core::scene::insert::load_insert;
 use fipt_core::scene::meta::{Relight, SceneMeta};
 use fipt_core::scene::{Camera, Dataset, Image, Mesh, SceneBox};
 use fipt_core::shading::ShadingLayout;
@@ -637,9 +638,9 @@ fn dataset_nerfstudio() {
 /// The tetrahedron's triangles: the size of `scene_meta.json`'s per-triangle tables.
 const TRIANGLES: usize = 4;
 
-/// `scene_meta.json` alone (`SceneMeta::load`, then its per-triangle tables) and
-/// `relight.json` (`Relight::load` with and without the scene's meta): never a panic, a cut
-/// file is an error, every error names the file.
+/// `scene_meta.json` alone (`SceneMeta::load`, then its per-triangle tables),
+/// `relight.json` (`Relight::load` with and without the scene's meta) and an insert file
+/// (`load_insert`): never a panic, a cut file is an error, every error names the file.
 #[test]
 fn meta_and_relight_readers() {
     let dir = scratch("meta");
@@ -654,21 +655,36 @@ fn meta_and_relight_readers() {
             "relight.json",
             serde_json::to_string_pretty(&relight_json()).unwrap(),
         ),
+        (
+            "insert.json",
+            serde_json::to_string_pretty(&serde_json::json!({"objects": [
+                {"name": "ball", "shape": "sphere", "scale": 0.2, "rotate_deg": [0, 30, 0],
+                 "translate": [2.5, 0.2, 2.0],
+                 "material": {"base_color": [0.8, 0.1, 0.1], "roughness": 0.3, "metallic": 0.0}},
+                {"name": "bulb", "shape": "cube", "scale": [0.05, 0.05, 0.05],
+                 "translate": [2, 2, 2], "emission": [20, 18, 15]}
+            ]}))
+            .unwrap(),
+        ),
     ];
     let ok = dir.join("ok.json");
     write(&ok, &texts[1].1);
     Relight::load(&ok, Some(&meta)).unwrap();
+    write(&ok, &texts[2].1);
+    load_insert(&ok).unwrap();
     check(
-        3000,
+        4000,
         &dir,
-        (any::<bool>(), text_damage(), 0u32..1_000_000),
-        |(relight, d, k)| {
-            let (name, good) = &texts[relight as usize];
+        (0usize..3, text_damage(), 0u32..1_000_000),
+        |(which, d, k)| {
+            let (name, good) = &texts[which];
             let bad = apply_text(good, &d);
             let path = dir.join(format!("case{k}-{name}"));
             write(&path, &bad);
             let what = format!("{name} damaged by {d:?}");
-            let results: Vec<Result<(), String>> = if relight {
+            let results: Vec<Result<(), String>> = if which == 2 {
+                vec![sound(&what, || load_insert(&path).map(|_| ()))?.map_err(|e| e.to_string())]
+            } else if which == 1 {
                 vec![
                     sound(&what, || Relight::load(&path, Some(&meta)).map(|_| ()))?,
                     sound(&what, || Relight::load(&path, None).map(|_| ()))?,

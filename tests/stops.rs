@@ -229,7 +229,7 @@ fn bake_stopped_anywhere_finishes_like_an_uninterrupted_bake() {
     let cfg = root.join("small.json");
     std::fs::write(
         &cfg,
-        r#"{"bake": {"voxel_res": 64, "samples": {"diffuse": 8, "specular": [4, 4, 4, 4, 4, 4]}}}"#,
+        r#"{"bake": {"voxel_res": 64, "samples": {"diffuse": 4, "specular": [2, 2, 2, 2, 2, 2]}}}"#,
     )
     .unwrap();
     let args: Vec<String> = ["bake", "--json", "--scene"]
@@ -255,7 +255,7 @@ fn bake_stopped_anywhere_finishes_like_an_uninterrupted_bake() {
 
 #[test]
 fn render_stopped_anywhere_finishes_like_an_uninterrupted_render() {
-    let args: Vec<String> = ["render", "--truth", "--json", "--spp", "16", "--scene"]
+    let args: Vec<String> = ["render", "--truth", "--json", "--spp", "8", "--scene"]
         .iter()
         .map(|s| s.to_string())
         .chain([scene_dir().display().to_string()])
