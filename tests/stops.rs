@@ -77,6 +77,7 @@ fn stop_at(args: &[String], out: &Path, after: Duration, sigint: bool) {
     }
     if let Some(st) = child.try_wait().unwrap() {
         assert!(st.success(), "{args:?} ended before its stop: {st}");
+        eprintln!("ended before its stop at {after:?}");
         return;
     }
     if !sigint {
@@ -92,6 +93,11 @@ fn stop_at(args: &[String], out: &Path, after: Duration, sigint: bool) {
     let st = child.wait().unwrap();
     let text = std::fs::read_to_string(&err).unwrap();
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    if st.success() && lines.is_empty() {
+        // The signal came after the command had ended its work (it was exiting).
+        eprintln!("Ctrl-C after {after:?}: the command had finished");
+        return;
+    }
     assert_eq!(st.code(), Some(130), "Ctrl-C: {st}: {text}");
     assert_eq!(lines.len(), 1, "Ctrl-C: not one line: {text}");
     assert!(lines[0].starts_with("interrupted"), "{text}");
@@ -188,12 +194,14 @@ fn read_json(p: &Path) -> Value {
 /// Kills and Ctrl-Cs of `args` into one folder at random points of an uninterrupted run's
 /// time, then the command to its end: `check` holds after every stop, and the outputs equal
 /// the uninterrupted run's (`outputs`: the folders compared byte for byte; `marker`: the
-/// report, compared without its times).
+/// report, compared without its times). `fresh`: folders removed before each stop, so that
+/// each stop cuts the whole work (a cache would make the next run short).
 fn stop_and_finish(
     tag: &str,
     args: &[String],
     outputs: &[&str],
     marker: &str,
+    fresh: &[&str],
     check: &dyn Fn(&Path, &Path),
 ) {
     let root = tmp_dir(tag);
@@ -201,6 +209,9 @@ fn stop_and_finish(
     let took = complete(args, &a);
     let mut points = Points(0x5eed ^ tag.len() as u64);
     for k in 0..10 {
+        for f in fresh {
+            let _ = std::fs::remove_dir_all(b.join(f));
+        }
         let after = took.mul_f64(points.next());
         stop_at(args, &b, after, k % 2 == 1);
         assert_no_partial(&b);
@@ -249,7 +260,8 @@ fn bake_stopped_anywhere_finishes_like_an_uninterrupted_bake() {
             assert!(b.join("shading").exists(), "bake.json without shading/");
         }
     };
-    stop_and_finish("bake", &args, &["shading", "cache"], "bake.json", &check);
+    let outputs = ["shading", "cache"];
+    stop_and_finish("bake", &args, &outputs, "bake.json", &["cache"], &check);
     std::fs::remove_dir_all(&root).unwrap();
 }
 
@@ -270,29 +282,21 @@ fn render_stopped_anywhere_finishes_like_an_uninterrupted_render() {
             assert!(b.join("val/Image").exists(), "render.json without images");
         }
     };
-    stop_and_finish("render", &args, &["val/Image"], "render.json", &check);
+    stop_and_finish("render", &args, &["val/Image"], "render.json", &[], &check);
 }
 
-/// A second `render` into a folder a first one is writing exits 1 naming the lock and the
-/// first's pid; the first finishes unharmed.
+/// A `render` into a folder another process holds exits 1 naming the lock and the holder's pid
+/// (here the test's own), and writes nothing; once the lock is let go it renders.
 #[test]
 fn a_second_writer_is_refused_naming_the_holder() {
     let root = tmp_dir("lock");
     let out = root.join("out");
-    let args: Vec<String> = ["render", "--truth", "--spp", "64", "--scene"]
+    let args: Vec<String> = ["render", "--truth", "--spp", "2", "--views", "0", "--scene"]
         .iter()
         .map(|s| s.to_string())
         .chain([scene_dir().display().to_string()])
         .collect();
-    let mut first = spawn(&args, &out, &root.join("first.stderr"));
-    // The lock is taken once the folder's lock file names the first's pid.
-    let lock = out.join(".fipt.lock");
-    let t = Instant::now();
-    while std::fs::read_to_string(&lock).unwrap_or_default() != first.id().to_string() {
-        assert!(t.elapsed() < Duration::from_secs(60), "no lock taken");
-        assert!(first.try_wait().unwrap().is_none(), "the first ended early");
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    let held = fipt_train::lock::DirLock::acquire(&out).unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
         .args(&args)
         .arg("--out")
@@ -302,11 +306,43 @@ fn a_second_writer_is_refused_naming_the_holder() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
-        err.contains(&format!("in use by fipt process {}", first.id()))
+        err.contains(&format!("in use by fipt process {}", std::process::id()))
             && err.contains(".fipt.lock"),
         "{err}"
     );
-    assert!(first.wait().unwrap().success(), "the first render failed");
+    assert!(!out.join("val").exists() && !out.join("render.json").exists());
+    drop(held);
+    complete(&args, &out);
     assert!(out.join("render.json").is_file());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// A render of some views (`--views`) replaces only those: the other views' images stay.
+#[test]
+fn a_render_of_some_views_keeps_the_others() {
+    let root = tmp_dir("views");
+    let out = root.join("out");
+    let base: Vec<String> = ["render", "--truth", "--spp", "2", "--scene"]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([scene_dir().display().to_string()])
+        .collect();
+    let with = |views: &str| {
+        let mut a = base.clone();
+        a.extend(["--views".to_string(), views.to_string()]);
+        a
+    };
+    complete(&with("0,1"), &out);
+    let dir = out.join("val/Image");
+    let before = std::fs::read(dir.join("000_0001.exr")).unwrap();
+    let mut again = with("1");
+    again.extend(["--max-depth".to_string(), "2".to_string()]);
+    complete(&again, &out);
+    assert_eq!(
+        std::fs::read(dir.join("000_0001.exr")).unwrap(),
+        before,
+        "view 0 changed"
+    );
+    assert!(dir.join("preview/000.png").is_file() && dir.join("001_0001.exr").is_file());
     std::fs::remove_dir_all(&root).unwrap();
 }

@@ -108,6 +108,8 @@ impl std::fmt::Display for Range {
         let num = |x: f64| {
             if x == std::f64::consts::PI {
                 "π".to_string()
+            } else if x == u64::MAX as f64 {
+                "2^64 − 1".to_string()
             } else if x.abs() >= 1e5 && x.fract() == 0.0 && (x.abs().log2().fract() == 0.0) {
                 format!("2^{}", x.abs().log2() as i32)
             } else if x.abs() >= 1e5 {
@@ -269,14 +271,14 @@ pub const FIELDS: &[Field] = &[
     f(M, "parts[].material.base_color[]", UNIT, "a reflectance"),
     f(M, "parts[].material.roughness", UNIT, "GGX σ"),
     f(M, "parts[].material.metallic", UNIT, "a mix"),
-    f(M, "parts[].material.texture.width", int(1.0, 16384.0), "texels"),
-    f(M, "parts[].material.texture.height", int(1.0, 16384.0), "texels"),
+    f(M, "parts[].material.texture.width", int(1.0, 1048576.0), "texels (recorded, not read)"),
+    f(M, "parts[].material.texture.height", int(1.0, 1048576.0), "texels (recorded, not read)"),
     f(M, "parts[].material.texture.origin[]", COORD, "m"),
     f(M, "parts[].material.texture.axis_u[]", COORD, "a direction"),
     f(M, "parts[].material.texture.axis_v[]", COORD, "a direction"),
     f(M, "parts[].material.texture.size_u", above(0.0, 1e6), "m"),
     f(M, "parts[].material.texture.size_v", above(0.0, 1e6), "m"),
-    f(M, "parts[].material.texture.mean_color[]", UNIT, "a reflectance"),
+    f(M, "parts[].material.texture.mean_color[]", UNIT, "a reflectance (recorded, not read)"),
     f(M, "parts[].emission.radiance[]", RADIANCE, "W sr⁻¹ m⁻²"),
     f(M, "resolution[]", int(1.0, 32768.0), "pixels"),
     f(M, "camera_angle_x", Range {

@@ -4,7 +4,7 @@
 //!
 //! Owns: cache keys and file formats of the bake's outputs. Must not touch: how shadings are made.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use fipt_bake::integrators::bake::BakeConfig;
 use fipt_core::io::{Fnv64, Part, write_parts_atomic};
 use fipt_core::scene::{Dataset, Image};
@@ -13,6 +13,25 @@ use std::io::Read;
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"FIPTSHD2";
+/// The magic of the format before the content hash: such a cache is stale, not damaged.
+const OLD_MAGIC: &[u8; 8] = b"FIPTSHD1";
+
+/// The error of a cache that is damaged (not a cache, cut, too long, or its content hash
+/// differs), as opposed to one that cannot be read at all.
+#[derive(Debug)]
+pub struct Damaged(pub String);
+
+impl std::fmt::Display for Damaged {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Damaged {}
+
+fn damaged(path: &Path, what: &str) -> anyhow::Error {
+    Damaged(format!("{}: {what} (delete it to rebake)", path.display())).into()
+}
 /// Magic, key, views, width, height, shading size, content hash: 8 bytes each.
 const HEAD: usize = 56;
 /// Bumped whenever the bake's maths or this format changes.
@@ -94,8 +113,9 @@ pub fn load(
     load_keyed(path, Some(key), views, width, height)
 }
 
-/// `load`, but a damaged cache is discarded (removed, with a message naming it and why) and
-/// reads as absent, so that the caller computes it again.
+/// `load`, but a damaged cache (`Damaged`) is discarded (removed, with a message naming it and
+/// why) and reads as absent, so that the caller computes it again. Other errors (a cache that
+/// cannot be opened) are errors.
 pub fn load_or_discard(
     path: &Path,
     key: u64,
@@ -105,12 +125,13 @@ pub fn load_or_discard(
 ) -> Result<Option<Vec<Vec<f32>>>> {
     match load(path, key, views, width, height) {
         Ok(v) => Ok(v),
-        Err(e) => {
+        Err(e) if e.is::<Damaged>() => {
             eprintln!("discarded a damaged cache, which is computed again: {e:#}");
             std::fs::remove_file(path)
                 .with_context(|| format!("{}: cannot remove the damaged cache", path.display()))?;
             Ok(None)
         }
+        Err(e) => Err(e),
     }
 }
 
@@ -128,11 +149,12 @@ pub fn load_keyed(
     let mut f =
         std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
     let mut head = [0u8; HEAD];
-    if f.read_exact(&mut head).is_err() || &head[..8] != MAGIC {
-        bail!(
-            "{}: not a fipt shading cache of this version (delete it to rebake)",
-            path.display()
-        );
+    let whole = f.read_exact(&mut head).is_ok();
+    if &head[..8] == OLD_MAGIC {
+        return Ok(None);
+    }
+    if !whole || &head[..8] != MAGIC {
+        return Err(damaged(path, "not a fipt shading cache"));
     }
     let num = |i: usize| u64::from_le_bytes(head[8 + 8 * i..16 + 8 * i].try_into().unwrap());
     if key.is_some_and(|k| num(0) != k) {
@@ -153,12 +175,8 @@ pub fn load_keyed(
     let mut buf = vec![0u8; per_view * 4];
     let mut h = xxhash_rust::xxh3::Xxh3::new();
     for k in 0..views {
-        f.read_exact(&mut buf).with_context(|| {
-            format!(
-                "{}: truncated at view {k} (delete it to rebake)",
-                path.display()
-            )
-        })?;
+        f.read_exact(&mut buf)
+            .map_err(|_| damaged(path, &format!("truncated at view {k}")))?;
         h.update(&buf);
         out.push(
             buf.chunks_exact(4)
@@ -167,16 +185,10 @@ pub fn load_keyed(
         );
     }
     if f.read(&mut [0u8; 1]).is_ok_and(|n| n > 0) {
-        bail!(
-            "{}: longer than its header says (delete it to rebake)",
-            path.display()
-        );
+        return Err(damaged(path, "longer than its header says"));
     }
     if h.digest() != num(5) {
-        bail!(
-            "{}: damaged, its content hash differs (delete it to rebake)",
-            path.display()
-        );
+        return Err(damaged(path, "damaged, its content hash differs"));
     }
     Ok(Some(out))
 }

@@ -518,6 +518,8 @@ fn write_split(
 /// `fipt-train demo`: the demo scene (cached in `OUT/scene`), then `run` on it into
 /// `OUT/run` with the shipped demo config; returns the run's report path.
 pub fn demo(out: &Path, quiet: bool) -> Result<PathBuf> {
+    // One demo per folder (the run in OUT/run holds its own lock too).
+    let _lock = crate::lock::DirLock::acquire(out)?;
     let scene = out.join("scene");
     let t = std::time::Instant::now();
     let written = write_scene(&scene, quiet)?;

@@ -44,7 +44,7 @@ pub fn install_quit() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         let _ = ctrlc::set_handler(|| {
-            eprintln!("interrupted (nothing half-written is left)");
+            eprintln!("interrupted");
             std::process::exit(130);
         });
     });

@@ -409,15 +409,22 @@ fn main() {
         quiet: false,
     });
     // Ctrl-C asks the long commands to stop at a safe point (`interrupt`).
-    if matches!(
+    let stoppable = matches!(
         cmd,
         Cmd::Demo { .. } | Cmd::Run { .. } | Cmd::Suite { .. } | Cmd::Bake { .. } | Cmd::Render(_)
-    ) {
+    );
+    if stoppable {
         fipt_train::interrupt::install();
     } else {
         fipt_train::interrupt::install_quit();
     }
-    if let Err(e) = dispatch(cmd) {
+    let done = dispatch(cmd);
+    // A Ctrl-C after the last safe point: the outputs are whole, the command still says so.
+    if done.is_ok() && stoppable && fipt_train::interrupt::requested() {
+        eprintln!("interrupted after the command's outputs were complete");
+        std::process::exit(130);
+    }
+    if let Err(e) = done {
         if let Some(i) = e.downcast_ref::<fipt_train::interrupt::Interrupted>() {
             eprintln!("{i}");
             std::process::exit(130);

@@ -503,13 +503,13 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     };
     let dir = job.out.join(group).join(folder);
     // One writer per OUT; the views go to a staged folder that replaces `dir` whole once every
-    // view is rendered, and `render.json` (removed just before) marks the finished set.
+    // view is rendered (with the other views of `dir` carried over when only some are
+    // rendered), and `render.json` (removed just before) marks the finished set.
     let _lock = crate::lock::DirLock::acquire(&job.out)?;
+    crate::pipeline::checkpoint::remove_stale_tmp_in(&job.out);
     crate::pipeline::checkpoint::remove_stale_tmp_in(&job.out.join(group));
     let staged = crate::output::sibling(&dir, "tmp");
     let _ = std::fs::remove_dir_all(&staged);
-    std::fs::create_dir_all(&staged)
-        .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", staged.display()))?;
     let edits = Edits {
         relight: relight.as_ref(),
         meta,
@@ -553,6 +553,8 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         Ok(v) => v,
         Err(e) => {
             let _ = std::fs::remove_dir_all(&staged);
+            // The group's folder, when this render created it (removed only when empty).
+            let _ = std::fs::remove_dir(job.out.join(group));
             return Err(crate::interrupt::reword(e, || {
                 format!(
                     "interrupted during the render; {} is as it was",
@@ -561,6 +563,10 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
             }));
         }
     };
+    if !job.views.is_empty() {
+        let rendered: Vec<usize> = picked.iter().map(|c| c.0).collect();
+        carry_other_views(&dir, &staged, &rendered)?;
+    }
     let marker = job.out.join("render.json");
     if marker.exists() {
         std::fs::remove_file(&marker)
@@ -601,6 +607,35 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         )
     })?;
     Ok(report)
+}
+
+/// Hard-links (or copies) into `staged` the images and previews in `dir` of the views not in
+/// `rendered` (files named from their view, `{k:03}…`), so that a render of some views keeps the
+/// others.
+fn carry_other_views(dir: &Path, staged: &Path, rendered: &[usize]) -> Result<()> {
+    for sub in ["", "preview"] {
+        let (from, to) = (dir.join(sub), staged.join(sub));
+        for e in std::fs::read_dir(&from).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let view: Option<usize> = name.get(..3).and_then(|s| s.parse().ok());
+            if !(e.path().is_file() && view.is_some_and(|k| !rendered.contains(&k))) {
+                continue;
+            }
+            std::fs::create_dir_all(&to)
+                .map_err(|err| anyhow::anyhow!("{}: cannot create: {err}", to.display()))?;
+            let dst = to.join(&name);
+            if std::fs::hard_link(e.path(), &dst).is_err() {
+                std::fs::copy(e.path(), &dst).map_err(|err| {
+                    anyhow::anyhow!(
+                        "{}: cannot copy to {}: {err}",
+                        e.path().display(),
+                        dst.display()
+                    )
+                })?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The job's scene model (its table on the device for a GPU backend); None for `--truth`.

@@ -333,9 +333,11 @@ fn json_matrix4(v: &Value, path: &Path, k: usize) -> Result<[[f64; 4]; 4]> {
     if m.iter().flatten().any(|x| !x.is_finite()) {
         return Err(bad());
     }
-    // The camera's axes (the first three columns) must span space.
+    // The camera's axes (the first three columns) must span space: the volume they span
+    // against the product of their lengths (scale-free).
     let col = |j: usize| glam::DVec3::new(m[0][j], m[1][j], m[2][j]);
-    if col(0).cross(col(1)).dot(col(2)).abs() < 1e-12 {
+    let volume = col(0).cross(col(1)).dot(col(2)).abs();
+    if volume <= 1e-6 * col(0).length() * col(1).length() * col(2).length() {
         return Err(FileError::new(
             path,
             format!("frame {k}: 'transform_matrix' has degenerate axes (its 3x3 part is singular)"),

@@ -23,13 +23,13 @@ use std::time::Instant;
 /// Bakes the scene's training views into `out` and writes `out/bake.json`.
 pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<BakeReport> {
     let t0 = Instant::now();
-    let _lock = crate::lock::DirLock::acquire(out)?;
-    crate::pipeline::checkpoint::remove_stale_tmp(out);
     let opts = LoadOptions {
         maps: image_metrics::GT_RENDER_MAPS.to_vec(),
         val: false,
     };
     let ds = Dataset::load(scene, &opts)?;
+    let _lock = crate::lock::DirLock::acquire(out)?;
+    crate::pipeline::checkpoint::remove_stale_tmp(out);
     let accel = Accel::build(&ds.mesh);
     let bake_cfg = cfg.bake_config();
     let t1 = Instant::now();

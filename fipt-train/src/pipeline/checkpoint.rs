@@ -39,11 +39,23 @@ struct StepManifest {
     files: std::collections::BTreeMap<String, (u64, String)>,
 }
 
-/// Size and XXH3-64 (hex) of the file at `p`.
+/// Size and XXH3-64 (hex) of the file at `p`, read in 1 MiB pieces.
 fn file_hash(p: &Path) -> Result<(u64, String)> {
-    let bytes = fipt_core::io::read_bytes(p)?;
-    let h = xxhash_rust::xxh3::xxh3_64(&bytes);
-    Ok((bytes.len() as u64, format!("{h:016x}")))
+    use std::io::Read;
+    let mut f = std::fs::File::open(p).with_context(|| format!("{}: cannot open", p.display()))?;
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    let (mut buf, mut len) = (vec![0u8; 1 << 20], 0u64);
+    loop {
+        let n = f
+            .read(&mut buf)
+            .with_context(|| format!("{}: cannot read", p.display()))?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+        len += n as u64;
+    }
+    Ok((len, format!("{:016x}", h.digest())))
 }
 
 /// Writes the manifest of the step folder `dir` (every file in it).
@@ -510,8 +522,10 @@ pub fn remove_stale_tmp(out: &Path) {
     clean(&out.join("checkpoint"), true);
 }
 
-/// Removes the temporaries a killed process left directly in `dir` (`stale_tmp`).
+/// Removes the temporaries a killed process left directly in `dir` (`stale_tmp`), after putting
+/// back a folder of `dir` set aside by a replacement the kill cut short.
 pub fn remove_stale_tmp_in(dir: &Path) {
+    restore_set_aside(dir);
     clean(dir, false);
 }
 

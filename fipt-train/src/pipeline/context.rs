@@ -60,8 +60,8 @@ impl<'a> RunContext<'a> {
         opts: &'a RunOptions,
     ) -> Result<Self> {
         let clock = Instant::now();
-        let lock = crate::lock::DirLock::acquire(out)?;
         let ds = Dataset::load(scene, &load_opts())?;
+        let lock = crate::lock::DirLock::acquire(out)?;
         let accel = Accel::build(&ds.mesh);
         let bake_cfg = cfg.bake_config();
         let bake_key = crate::cache::cache_key(&ds, &bake_cfg)?;
