@@ -3,21 +3,11 @@
 //! message naming the file it could not write; the outputs of an earlier run stay as they were,
 //! byte for byte, and no temporary is left.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{scene_dir, tmp_dir};
+use std::path::Path;
 use std::process::Command;
-
-fn scene_dir() -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room");
-    assert!(p.join("scene.obj").exists(), "missing {}", p.display());
-    p
-}
-
-fn tmp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fipt-disk-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// Whether this process may make a private mount namespace (`unshare -m`: root, as in CI).
 /// Root must; anyone else is told the test was skipped.

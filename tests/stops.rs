@@ -6,23 +6,11 @@
 
 mod common;
 
+use common::{scene_dir, tmp_dir};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn scene_dir() -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room");
-    assert!(p.join("scene.obj").exists(), "missing {}", p.display());
-    p
-}
-
-fn tmp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fipt-stops-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// The command `args` with `--out out`, its stderr to `err`.
 fn spawn(args: &[String], out: &Path, err: &Path) -> Child {

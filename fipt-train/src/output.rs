@@ -13,6 +13,16 @@ pub fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {
     Ok(())
 }
 
+/// Removes the file `path` if it is there; an error names it.
+pub fn remove_file_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            anyhow::bail!("{}: cannot remove: {e}", path.display())
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Writes an RGB image as an 8-bit PNG of clip(x·scale, 0, 1)^(1/2.2), atomically.
 pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[f32], scale: f32) -> Result<()> {
     let bytes: Vec<u8> = rgb

@@ -508,8 +508,7 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     let _lock = crate::lock::DirLock::acquire(&job.out)?;
     crate::pipeline::checkpoint::remove_stale_tmp_in(&job.out);
     crate::pipeline::checkpoint::remove_stale_tmp_in(&job.out.join(group));
-    let staged = crate::output::sibling(&dir, "tmp");
-    let _ = std::fs::remove_dir_all(&staged);
+    let marker = job.out.join("render.json");
     let edits = Edits {
         relight: relight.as_ref(),
         meta,
@@ -517,9 +516,9 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
     };
     let t_render = Instant::now();
     let mesh = views.as_ref().and_then(|v| v.mesh.as_ref());
-    let rendered = (|| -> Result<(String, Rendered)> {
-        Ok(match &model {
-            Some(m) => render_model(job, m, mesh, &edits, &picked, &staged)?,
+    let rendered = crate::output::staged_dir(&dir, |staged| {
+        let (source, r) = match &model {
+            Some(m) => render_model(job, m, mesh, &edits, &picked, staged)?,
             None => {
                 let (Some(mesh), Some(scene)) = (mesh, &job.scene) else {
                     bail!("--truth needs --scene");
@@ -536,43 +535,27 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
                     meta,
                 };
                 let q = job.quiet;
-                let r = render_truth(
-                    &truth,
-                    &edits,
-                    &picked,
-                    &job.path,
-                    job.selection,
-                    &staged,
-                    q,
-                )?;
+                let r = render_truth(&truth, &edits, &picked, &job.path, job.selection, staged, q)?;
                 ("truth".to_string(), r)
             }
-        })
-    })();
-    let (source, r) = match rendered {
-        Ok(v) => v,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&staged);
-            // The group's folder, when this render created it (removed only when empty).
-            let _ = std::fs::remove_dir(job.out.join(group));
-            return Err(crate::interrupt::reword(e, || {
-                format!(
-                    "interrupted during the render; {} is as it was",
-                    job.out.display()
-                )
-            }));
+        };
+        if !job.views.is_empty() {
+            let rendered: Vec<usize> = picked.iter().map(|c| c.0).collect();
+            carry_other_views(&dir, staged, &rendered)?;
         }
-    };
-    if !job.views.is_empty() {
-        let rendered: Vec<usize> = picked.iter().map(|c| c.0).collect();
-        carry_other_views(&dir, &staged, &rendered)?;
-    }
-    let marker = job.out.join("render.json");
-    if marker.exists() {
-        std::fs::remove_file(&marker)
-            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", marker.display()))?;
-    }
-    crate::output::replace_dir(&staged, &dir)?;
+        crate::output::remove_file_if_present(&marker)?;
+        Ok((source, r))
+    });
+    let (source, r) = rendered.map_err(|e| {
+        // The group's folder, when this render created it (removed only when empty).
+        let _ = std::fs::remove_dir(job.out.join(group));
+        crate::interrupt::reword(e, || {
+            format!(
+                "interrupted during the render; {} is as it was",
+                job.out.display()
+            )
+        })
+    })?;
     let wall = t_render.elapsed().as_secs_f64();
     let scores: Vec<f64> = r.views.iter().filter_map(|v| v.psnr_db).collect();
     let report = RenderReport {
@@ -599,13 +582,6 @@ pub fn render(job: &RenderJob) -> Result<RenderReport> {
         threads: rayon::current_num_threads(),
     };
     write_json(&marker, &report)?;
-    // A Ctrl-C during the last view ends the command now that the outputs are whole.
-    crate::interrupt::check(|| {
-        format!(
-            "interrupted after the render's outputs were complete in {}",
-            job.out.display()
-        )
-    })?;
     Ok(report)
 }
 

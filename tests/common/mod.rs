@@ -1,6 +1,22 @@
-//! Helpers shared by the end-to-end tests (included with `mod common;`).
+//! Helpers shared by the end-to-end tests (included with `mod common;`; each test uses some).
+#![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// The reference scene carried in the repository.
+pub fn scene_dir() -> PathBuf {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/fipt-room");
+    assert!(p.join("scene.obj").exists(), "missing {}", p.display());
+    p
+}
+
+/// An empty scratch folder of this test process, named by `tag`.
+pub fn tmp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fipt-test-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
 
 /// Panics unless the file at `p` is non-empty and reads as what its extension says: JSON, PNG,
 /// EXR, or HTML that ends with `</html>`.

@@ -4,7 +4,8 @@
 //! The outputs are complete or absent: OUT is locked against a second writer, `shading/` is
 //! written into a staged folder that replaces the old one whole, and `bake.json` (written last,
 //! removed before anything else is replaced) marks a complete set. Ctrl-C stops the bake itself
-//! (nothing of it is written); once the outputs are being written they are finished first.
+//! (nothing of it is written); once the outputs are being written they are finished first (and
+//! the command then exits 130, see `main`).
 //!
 //! Owns: the command's outputs (`bake.json`, previews). Must not touch: the estimators.
 
@@ -45,10 +46,7 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
     let (w, h) = (ds.train.width, ds.train.height);
     // From here on the old set is replaced: first its marker goes.
     let marker = out.join("bake.json");
-    if marker.exists() {
-        std::fs::remove_file(&marker)
-            .map_err(|e| anyhow::anyhow!("{}: cannot remove: {e}", marker.display()))?;
-    }
+    crate::output::remove_file_if_present(&marker)?;
     crate::output::staged_dir(&out.join("shading"), |dir| {
         cache::write_exrs(dir, w, h, &baked.shadings)?;
         for (k, s) in baked.shadings.iter().enumerate() {
@@ -145,13 +143,6 @@ pub fn bake_job(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<B
         config: bake_cfg,
     };
     write_json(&marker, &report)?;
-    // A Ctrl-C while the outputs were written ends the command now that they are whole.
-    crate::interrupt::check(|| {
-        format!(
-            "interrupted after the bake's outputs were complete in {}",
-            out.display()
-        )
-    })?;
     Ok(report)
 }
 
@@ -165,8 +156,7 @@ fn remove_view_pngs(out: &Path) -> Result<()> {
             .any(|p| name.starts_with(p))
             && name.ends_with(".png");
         if old {
-            std::fs::remove_file(e.path())
-                .map_err(|err| anyhow::anyhow!("{}: cannot remove: {err}", e.path().display()))?;
+            crate::output::remove_file_if_present(&e.path())?;
         }
     }
     Ok(())

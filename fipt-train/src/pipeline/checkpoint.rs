@@ -304,11 +304,11 @@ impl Checkpoints {
         step_dirs(&self.round_dir(round)).into_iter().last()
     }
 
-    /// Whether `round`'s saved fit has also run its basin hop (`TrainLog::hop`).
+    /// Whether `round`'s saved fit has also run its basin hop (`TrainLog::hop`). Asked only of
+    /// a round whose `fit_done` holds, which has checked the folder against its manifest.
     pub fn hop_done(&self, round: usize) -> bool {
-        self.newest(round).is_some_and(|(_, d)| {
-            verify_step(&d).is_ok() && FitProgress::load_log(&d).is_ok_and(|l| l.hop.is_some())
-        })
+        self.newest(round)
+            .is_some_and(|(_, d)| FitProgress::load_log(&d).is_ok_and(|l| l.hop.is_some()))
     }
 
     /// Whether `round`'s fit has a saved state that has run every step.
