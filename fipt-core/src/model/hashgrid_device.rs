@@ -65,13 +65,19 @@ impl GridTables {
 }
 
 /// Corner offsets of a cell along x, y, z, in `hashgrid::cell`'s corner order (bit k of the
-/// corner number is the offset along axis k).
-fn corner_offsets(device: &Device) -> [Tensor<2, Int>; 3] {
-    crate::model::transfer::upload(3 * 8 * 8);
-    std::array::from_fn(|k| {
-        let v: Vec<i64> = (0..8).map(|c| ((c >> k) & 1) as i64).collect();
-        Tensor::from_data(TensorData::new(v, [1, 8]), device)
-    })
+/// corner number is the offset along axis k): row k of a [3, 8] tensor, uploaded once per
+/// encoding (an upload is a host–device round trip on a GPU, so not once per level).
+pub struct CornerOffsets([Tensor<2, Int>; 3]);
+
+impl CornerOffsets {
+    pub fn new(device: &Device) -> Self {
+        crate::model::transfer::upload(3 * 8 * 8);
+        let v: Vec<i64> = (0..3)
+            .flat_map(|k| (0..8).map(move |c| ((c >> k) & 1) as i64))
+            .collect();
+        let all = Tensor::<2, Int>::from_data(TensorData::new(v, [3, 8]), device);
+        Self(std::array::from_fn(|k| all.clone().slice([k..k + 1, 0..8])))
+    }
 }
 
 /// The 8 corners of each point's cell on `level`, on the device: local entry indices [N, 8]
@@ -80,9 +86,12 @@ fn corner_offsets(device: &Device) -> [Tensor<2, Int>; 3] {
 /// coordinate clamped to r − 1, hashed levels (v_x·1 ⊕ v_y·π₂ ⊕ v_z·π₃) mod T, where the
 /// products wrap (i32 on GPUs) or not (i64 on the CPU backends): T is a power of two, so the
 /// residue is the same; weights Π_k (b_k ? f_k : 1 − f_k), multiplied in axis order.
-pub fn level_corners(level: &Level, x_unit: Tensor<2>) -> (Tensor<2, Int>, Tensor<2>) {
+pub fn level_corners(
+    level: &Level,
+    x_unit: Tensor<2>,
+    offsets: &CornerOffsets,
+) -> (Tensor<2, Int>, Tensor<2>) {
     let [n, _] = x_unit.dims();
-    let device = x_unit.device();
     let p = x_unit
         .clamp(0.0, 1.0)
         .mul_scalar(level.scale)
@@ -90,7 +99,7 @@ pub fn level_corners(level: &Level, x_unit: Tensor<2>) -> (Tensor<2, Int>, Tenso
     let f = p.clone().floor();
     let frac = p - f.clone();
     let g = f.int();
-    let b = corner_offsets(&device);
+    let b = &offsets.0;
     let axis = |k: usize| -> (Tensor<2, Int>, Tensor<2>) {
         let v = g.clone().slice([0..n, k..k + 1]) + b[k].clone();
         let fk = frac.clone().slice([0..n, k..k + 1]);
@@ -119,10 +128,15 @@ pub fn level_corners(level: &Level, x_unit: Tensor<2>) -> (Tensor<2, Int>, Tenso
 }
 
 /// One level's features [N, F]: Σ_c w_c · T_l[idx_c] (gathered on the device).
-fn encode_level(level: &Level, table: Tensor<2>, x_unit: Tensor<2>) -> Tensor<2> {
+fn encode_level(
+    level: &Level,
+    table: Tensor<2>,
+    x_unit: Tensor<2>,
+    offsets: &CornerOffsets,
+) -> Tensor<2> {
     let [n, _] = x_unit.dims();
     let [_, nf] = table.dims();
-    let (idx, w) = level_corners(level, x_unit);
+    let (idx, w) = level_corners(level, x_unit, offsets);
     let feats = select_rows_dev(table, idx.reshape([n * 8])).reshape([n, 8, nf]);
     (feats * w.reshape([n, 8, 1])).sum_dim(1).reshape([n, nf])
 }
@@ -130,10 +144,11 @@ fn encode_level(level: &Level, table: Tensor<2>, x_unit: Tensor<2>) -> Tensor<2>
 /// The encoding [N, levels·F] of unit-cube points `x_unit` [N, 3], levels side by side as
 /// `HashGrid::encode` lays them out; differentiable w.r.t. every level's table.
 pub fn encode(levels: &[Level], tables: &GridTables, x_unit: Tensor<2>) -> Tensor<2> {
+    let offsets = CornerOffsets::new(&x_unit.device());
     let parts = levels
         .iter()
         .zip(&tables.levels)
-        .map(|(l, t)| encode_level(l, t.val(), x_unit.clone()))
+        .map(|(l, t)| encode_level(l, t.val(), x_unit.clone(), &offsets))
         .collect();
     Tensor::cat(parts, 1)
 }
@@ -180,7 +195,7 @@ mod tests {
         let xs = points(500);
         let dev = Device::flex();
         for level in &g.levels {
-            let (idx, w) = level_corners(level, tensor(&xs, &dev));
+            let (idx, w) = level_corners(level, tensor(&xs, &dev), &CornerOffsets::new(&dev));
             let idx: Vec<i64> = idx.into_data().convert::<i64>().try_to_vec().unwrap();
             let w: Vec<f32> = w.try_into_vec_as::<f32>().unwrap();
             for (p, &x) in xs.iter().enumerate() {
