@@ -10,6 +10,7 @@ pub mod cache;
 pub mod check;
 pub mod config;
 pub mod demo;
+pub mod export;
 pub mod html_report;
 pub mod image_metrics;
 pub mod interrupt;

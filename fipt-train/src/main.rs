@@ -140,6 +140,41 @@ enum Cmd {
     /// (`--truth`), from a split's cameras or new ones, relit, with inserted objects.
     #[command(group(clap::ArgGroup::new("source").required(true).args(["truth", "model"])))]
     Render(RenderArgs),
+    /// A recovered scene model (`--model`) or a scene's ground truth (`--truth`) as glTF 2.0
+    /// and Mitsuba 3 files: the field baked into textures over a UV atlas, one material per
+    /// part, emitters with their radiance, the val views' cameras.
+    #[command(group(clap::ArgGroup::new("source").required(true).args(["truth", "model"])))]
+    Export {
+        /// A scene model folder, or a name in the zoo.
+        #[arg(long)]
+        model: Option<String>,
+        /// Export the true scene of --scene (materials, textures and emitters of
+        /// scene_meta.json).
+        #[arg(long)]
+        truth: bool,
+        /// The scene folder: its parts and val cameras (default for a model: the folder it
+        /// was recovered from, where it still exists).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// glb (one file), gltf (.gltf + .bin + PNGs) or mitsuba (scene.xml + PLY + PNGs);
+        /// repeat or comma-separate for several.
+        #[arg(long, value_delimiter = ',', required = true)]
+        format: Vec<fipt_train::export::Format>,
+        #[arg(long)]
+        out: PathBuf,
+        /// Side of the square textures, in texels.
+        #[arg(long, default_value_t = 2048, value_parser = flag_range(*fipt_train::export::TEXELS.start(), *fipt_train::export::TEXELS.end()))]
+        texels: usize,
+        /// Where a model's field is queried: flex (host) or wgpu.
+        #[arg(long, default_value = "flex")]
+        backend: BackendKind,
+        /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
+        #[arg(long)]
+        zoo: Option<PathBuf>,
+        /// Print export.json instead of a summary.
+        #[arg(long)]
+        json: bool,
+    },
     /// The model zoo: scene models recovered by `run`, by name.
     Zoo {
         /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
@@ -524,6 +559,48 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             let job = args.job()?;
             let r = fipt_train::rerender::render(&job)?;
             print_json_or(json, &r, || r.print(&job.out))
+        }
+        Cmd::Export {
+            model,
+            truth: _,
+            scene,
+            format,
+            out,
+            texels,
+            backend,
+            zoo,
+            json,
+        } => {
+            let source = match model {
+                Some(name_or_dir) => fipt_train::export::Source::Model {
+                    name_or_dir,
+                    zoo: fipt_train::zoo::working(zoo.as_deref()),
+                },
+                None => fipt_train::export::Source::Truth,
+            };
+            let job = fipt_train::export::ExportJob {
+                source,
+                scene,
+                formats: format,
+                out: out.clone(),
+                texels,
+                backend,
+                quiet: json,
+            };
+            let r = fipt_train::export::export(&job)?;
+            print_json_or(json, &r, || {
+                println!(
+                    "{}: {} files, {} materials, {} emitting triangles, {} cameras, {}² texels ({:.0} % used) in {:.1} s",
+                    out.display(),
+                    r.files.len(),
+                    r.materials.len(),
+                    r.emitter_triangles,
+                    r.cameras,
+                    r.texels,
+                    100.0 * r.coverage,
+                    r.seconds
+                )
+            })
         }
         Cmd::Suite {
             out,
