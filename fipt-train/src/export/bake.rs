@@ -1,7 +1,8 @@
 //! The material field and the emitters baked into the atlas's texels.
 //!
 //! Every texel whose centre lies inside a triangle's UV image takes the material at the world
-//! point with the same barycentric coordinates. Texels around each chart, up to the atlas's
+//! point with the same barycentric coordinates; a sliver that holds no texel centre takes the
+//! texels under its corners and centroid. Texels around each chart, up to the atlas's
 //! padding, take the material of the nearest covered texel's triangle at the point of that
 //! triangle closest in barycentric terms, so that bilinear filtering at a chart's edge reads no
 //! texel of another chart or of the empty background.
@@ -50,6 +51,23 @@ pub fn bake(
             owner[y * size + x] = t as u32;
             bary[y * size + x] = b;
         });
+    }
+    // Slivers that contain no texel centre still own the texels under their corners and
+    // centroid, so that every triangle reads its own material.
+    for t in 0..mesh.num_triangles() {
+        let c = atlas.texel_corners(t);
+        for p in [(c[0] + c[1] + c[2]) / 3.0, c[0], c[1], c[2]] {
+            let (x, y) = (p.x.floor(), p.y.floor());
+            if x < 0.0 || y < 0.0 || x >= size as f32 || y >= size as f32 {
+                continue;
+            }
+            let i = y as usize * size + x as usize;
+            if owner[i] == EMPTY {
+                owner[i] = t as u32;
+                let centre = glam::Vec2::new(x + 0.5, y + 0.5);
+                bary[i] = clamp_bary(barycentric(&c, centre).unwrap_or([1.0 / 3.0; 3]));
+            }
+        }
     }
     // Padding: rings of 8-neighbours, each taking the first covered neighbour's triangle.
     let mut front: Vec<usize> = (0..size * size).filter(|&i| owner[i] != EMPTY).collect();
