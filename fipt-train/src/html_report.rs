@@ -103,12 +103,46 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
         hops(&mut h, &run, &ds);
         loss_curves(&mut h, &run);
         sheet(&mut h, out, img_dir)?;
+        scene_viewer(&mut h, scene, out, img_dir)?;
         h.push_str("</body></html>\n");
         Ok(h)
     })?;
     let page = out.join("report.html");
     fipt_core::io::write_bytes_atomic(&page, h.as_bytes())?;
     Ok(page)
+}
+
+/// Texels of the viewer's textures (a smaller export than `export`'s default keeps the report
+/// light).
+const VIEWER_TEXELS: usize = 1024;
+
+/// The recovered scene in 3D: `OUT/model` exported as `.glb` with the offline viewer into
+/// `report/viewer/`, linked and shown in a frame (nothing where the run saved no model).
+fn scene_viewer(h: &mut String, scene: &Path, out: &Path, img_dir: &Path) -> Result<()> {
+    let model = out.join("model");
+    if !model.join(crate::scene_model::MANIFEST).is_file() {
+        return Ok(());
+    }
+    let job = crate::export::ExportJob {
+        source: crate::export::Source::Model {
+            name_or_dir: model.display().to_string(),
+            zoo: out.join("zoo"),
+        },
+        scene: Some(scene.to_path_buf()),
+        formats: vec![crate::export::Format::Viewer],
+        out: img_dir.join("viewer"),
+        texels: VIEWER_TEXELS,
+        backend: fipt_core::model::BackendKind::Flex,
+        quiet: true,
+    };
+    let r = crate::export::export(&job)?;
+    let _ = write!(
+        h,
+        "<h2>Recovered scene</h2><p>The scene model as glTF 2.0 (<a href=\"report/viewer/scene.glb\">scene.glb</a>, {} materials, {}² textures; <code>fipt-train export</code> writes larger ones and Mitsuba 3 scenes). Drag to orbit, scroll to zoom; <a href=\"report/viewer/viewer.html\">open the viewer alone</a>.</p><iframe src=\"report/viewer/viewer.html\" style=\"width:100%;max-width:1000px;height:600px;border:1px solid #ccc\"></iframe>",
+        r.materials.len(),
+        r.texels
+    );
+    Ok(())
 }
 
 fn metric_tables(h: &mut String, run: &RunReport, ds: &Dataset) {

@@ -156,8 +156,8 @@ enum Cmd {
         /// was recovered from, where it still exists).
         #[arg(long)]
         scene: Option<PathBuf>,
-        /// glb (one file), gltf (.gltf + .bin + PNGs) or mitsuba (scene.xml + PLY + PNGs);
-        /// repeat or comma-separate for several.
+        /// glb (one file), gltf (.gltf + .bin + PNGs), mitsuba (scene.xml + PLY + PNGs) or
+        /// viewer (scene.glb with an offline WebGL viewer page); repeat or comma-separate.
         #[arg(long, value_delimiter = ',', required = true)]
         format: Vec<fipt_train::export::Format>,
         #[arg(long)]

@@ -20,6 +20,7 @@ pub mod atlas;
 pub mod bake;
 pub mod gltf;
 pub mod mitsuba;
+pub mod viewer;
 
 use anyhow::{Context, Result, bail};
 use fipt_bake::emitters::EmitterSides;
@@ -40,6 +41,8 @@ pub enum Format {
     Gltf,
     /// Mitsuba 3: `scene.xml`, `meshes/*.ply`, `textures/*.png`.
     Mitsuba,
+    /// `scene.glb` with an offline WebGL viewer beside it: `viewer.html`, `scene.glb.js`.
+    Viewer,
 }
 
 /// Where the materials and emitters come from.
@@ -406,7 +409,7 @@ pub fn export(job: &ExportJob) -> Result<ExportReport> {
         );
     }
     if job.formats.is_empty() {
-        bail!("--format: give at least one of glb, gltf, mitsuba");
+        bail!("--format: give at least one of glb, gltf, mitsuba, viewer");
     }
     let src = load(job)?;
     let cameras = val_cameras(src.scene.as_deref(), src.image_size)?;
@@ -453,6 +456,7 @@ pub fn export(job: &ExportJob) -> Result<ExportReport> {
                 Format::Glb => gltf::write_glb(&scene, &pngs, &stage)?,
                 Format::Gltf => gltf::write_gltf(&scene, &pngs, &stage)?,
                 Format::Mitsuba => mitsuba::write(&scene, &pngs, &stage)?,
+                Format::Viewer => viewer::write(&scene, &pngs, &stage)?,
             });
         }
         files.sort();
