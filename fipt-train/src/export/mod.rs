@@ -390,7 +390,20 @@ fn val_cameras(
             (i.width, i.height)
         }
     };
-    Ok(fipt_core::scene::dataset::load_cameras(&path, size)?
+    let cams = fipt_core::scene::dataset::load_cameras(&path, size)?;
+    // Neither glTF's perspective camera nor Mitsuba's sensor (as written) takes an off-centre
+    // principal point or non-square pixels.
+    if let Some((k, _)) = cams.iter().enumerate().find(|(_, c)| {
+        (c.cx - 0.5 * c.width as f64).abs() > 0.5
+            || (c.cy - 0.5 * c.height as f64).abs() > 0.5
+            || (c.fx - c.fy).abs() > 1e-3 * c.fx
+    }) {
+        eprintln!(
+            "warning: {}: frame {k} has an off-centre principal point or non-square pixels; the exported cameras keep fx and a centred principal point",
+            path.display()
+        );
+    }
+    Ok(cams
         .into_iter()
         .enumerate()
         .map(|(k, c)| (format!("val_{k:03}"), c))
