@@ -117,7 +117,8 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
 const VIEWER_TEXELS: usize = 1024;
 
 /// The recovered scene in 3D: `OUT/model` exported as `.glb` with the offline viewer into
-/// `report/viewer/`, linked and shown in a frame (nothing where the run saved no model).
+/// `report/viewer/`, linked and shown in a frame (nothing where the run saved no model; the
+/// error where it cannot be exported).
 fn scene_viewer(h: &mut String, scene: &Path, out: &Path, img_dir: &Path) -> Result<()> {
     let model = out.join("model");
     if !model.join(crate::scene_model::MANIFEST).is_file() {
@@ -135,7 +136,19 @@ fn scene_viewer(h: &mut String, scene: &Path, out: &Path, img_dir: &Path) -> Res
         backend: fipt_core::model::BackendKind::Flex,
         quiet: true,
     };
-    let r = crate::export::export(&job)?;
+    // The report does not depend on the viewer: a model it cannot export is named instead.
+    let r = match crate::export::export(&job) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("warning: report: no 3D viewer: {e:#}");
+            let _ = write!(
+                h,
+                "<h2>Recovered scene</h2><p>No 3D viewer: {}</p>",
+                esc(&format!("{e:#}"))
+            );
+            return Ok(());
+        }
+    };
     let _ = write!(
         h,
         "<h2>Recovered scene</h2><p>The scene model as glTF 2.0 (<a href=\"report/viewer/scene.glb\">scene.glb</a>, {} materials, {}² textures; <code>fipt-train export</code> writes larger ones and Mitsuba 3 scenes). Drag to orbit, scroll to zoom; <a href=\"report/viewer/viewer.html\">open the viewer alone</a>.</p><iframe src=\"report/viewer/viewer.html\" style=\"width:100%;max-width:1000px;height:600px;border:1px solid #ccc\"></iframe>",
