@@ -311,13 +311,21 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     // is finite, and it has every section of a scene with ground truth.
     let page = std::fs::read_to_string(base.join("a/report.html")).unwrap();
     let mut images = 0;
-    for part in page.split("src=\"").skip(1) {
+    for part in page.split("<img src=\"").skip(1) {
         let src = &part[..part.find('"').unwrap()];
         let bytes =
             std::fs::read(base.join("a").join(src)).unwrap_or_else(|_| panic!("{src} missing"));
         assert!(bytes.starts_with(b"\x89PNG"), "{src} is not a PNG");
         images += 1;
     }
+    // The recovered scene's viewer: the page it frames and the .glb it links.
+    assert!(page.contains("<iframe src=\"report/viewer/viewer.html\""));
+    assert!(base.join("a/report/viewer/viewer.html").is_file());
+    let glb = std::fs::read(base.join("a/report/viewer/scene.glb")).unwrap();
+    assert!(
+        glb.starts_with(b"glTF"),
+        "report/viewer/scene.glb is not a GLB"
+    );
     // Three views × (photo, re-render, and truth, estimate, error of 5 maps), and the sheet.
     assert_eq!(images, 3 * 17 + 1, "images in the report");
     let mut cells = 0;
