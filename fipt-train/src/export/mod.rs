@@ -319,7 +319,14 @@ fn load(job: &ExportJob) -> Result<Loaded> {
                 Some(s) => Some(s.clone()),
                 None => {
                     let s = PathBuf::from(&m.manifest.scene);
-                    s.join("scene.obj").is_file().then_some(s)
+                    let found = s.join("scene.obj").is_file();
+                    if !found && !job.quiet {
+                        eprintln!(
+                            "export: the model's scene folder {} is not here: one material, no cameras (give --scene)",
+                            s.display()
+                        );
+                    }
+                    found.then_some(s)
                 }
             };
             let mut meta = None;
