@@ -619,13 +619,7 @@ fn load_model(job: &RenderJob) -> Result<Option<crate::scene_model::SceneModel>>
     let Source::Model { name_or_dir, zoo } = &job.source else {
         return Ok(None);
     };
-    let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
-    let device = job.backend.device().map_err(anyhow::Error::msg)?;
-    let mut m = crate::scene_model::SceneModel::load(&dir, &device)?;
-    if job.backend.is_gpu() {
-        m.model.upload_table();
-    }
-    Ok(Some(m))
+    crate::scene_model::SceneModel::open(name_or_dir, zoo, job.backend).map(Some)
 }
 
 /// What the job reads from its scene folder (None without `--scene`). The photos (`Image/`)

@@ -327,6 +327,22 @@ pub fn verify_files(dir: &Path, m: &Manifest) -> Result<()> {
 }
 
 impl SceneModel {
+    /// The model `name_or_dir` (a folder, or a name in the zoo `zoo`) loaded for `backend`:
+    /// on a GPU backend its hash table is uploaded to the device.
+    pub fn open(
+        name_or_dir: &str,
+        zoo: &Path,
+        backend: fipt_core::model::BackendKind,
+    ) -> Result<Self> {
+        let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
+        let device = backend.device().map_err(anyhow::Error::msg)?;
+        let mut m = Self::load(&dir, &device)?;
+        if backend.is_gpu() {
+            m.model.upload_table();
+        }
+        Ok(m)
+    }
+
     /// Loads a model folder on `device`; every error names the file and the problem.
     pub fn load(dir: &Path, device: &burn::tensor::Device) -> Result<Self> {
         let manifest = read_manifest(dir)?;

@@ -38,39 +38,26 @@ fn align4(v: &mut Vec<u8>) {
 /// Builds the document. `embed`: images go into the buffer (GLB); else they are referenced as
 /// `textures/<name>.png` and `buffer_uri` names the buffer file.
 fn pack(s: &Scene, pngs: &Pngs, embed: bool, buffer_uri: Option<&str>) -> Packed {
-    // Per group: its vertices (original vertex, chart) and local indices.
+    // Per group: its indexed triangles, appended to shared position, UV and index arrays.
     let mut positions: Vec<f32> = Vec::new();
     let mut uvs: Vec<f32> = Vec::new();
     let mut indices: Vec<u32> = Vec::new();
     let mut prims = Vec::new(); // (group, first vertex, vertex count, first index, index count, min, max)
-    for (g, _) in s.groups.iter().enumerate() {
-        let mut local: std::collections::HashMap<(u32, u32), u32> = Default::default();
+    for (g, tris) in s.triangles_by_group().iter().enumerate() {
+        let m = s.indexed(tris, 0.0);
         let (v0, i0) = (positions.len() / 3, indices.len());
         let mut min = [f32::INFINITY; 3];
         let mut max = [f32::NEG_INFINITY; 3];
-        for t in 0..s.mesh.num_triangles() {
-            if s.group_of[t] as usize != g {
-                continue;
+        for p in &m.positions {
+            for (c, x) in p.to_array().into_iter().enumerate() {
+                min[c] = min[c].min(x);
+                max[c] = max[c].max(x);
             }
-            let tri = s.mesh.triangles[t];
-            for (k, &v) in tri.iter().enumerate() {
-                let key = (v, s.atlas.chart[t]);
-                let next = (positions.len() / 3 - v0) as u32;
-                let id = *local.entry(key).or_insert_with(|| {
-                    let p = s.mesh.vertices[v as usize];
-                    for (c, x) in p.to_array().into_iter().enumerate() {
-                        min[c] = min[c].min(x);
-                        max[c] = max[c].max(x);
-                    }
-                    positions.extend(p.to_array());
-                    uvs.extend(s.atlas.uv[t][k].to_array());
-                    next
-                });
-                indices.push(id);
-            }
+            positions.extend(p.to_array());
         }
-        let nv = positions.len() / 3 - v0;
-        prims.push((g, v0, nv, i0, indices.len() - i0, min, max));
+        uvs.extend(m.uvs.iter().flat_map(|u| u.to_array()));
+        indices.extend(m.faces.iter().flatten());
+        prims.push((g, v0, m.positions.len(), i0, indices.len() - i0, min, max));
     }
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();

@@ -23,50 +23,32 @@ use fipt_core::io::write_bytes_atomic;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// A PLY (binary little-endian) of the triangles `tris`: positions and optional per-vertex UVs
-/// (per chart); vertices offset by `shift` along each face's winding normal.
+/// A PLY (binary little-endian) of the triangles `tris` (`Scene::indexed`): positions and
+/// optional per-vertex UVs; vertices offset by `shift` along each face's winding normal.
 fn ply(s: &Scene, tris: &[u32], uv: bool, shift: f32) -> Vec<u8> {
-    let mut verts: Vec<f32> = Vec::new();
-    let mut faces: Vec<[u32; 3]> = Vec::new();
-    let mut local: std::collections::HashMap<(u32, u32), u32> = Default::default();
-    for &t in tris {
-        let tri = s.mesh.triangles[t as usize];
-        let n = s.mesh.normal(t as usize);
-        let mut f = [0u32; 3];
-        for k in 0..3 {
-            // Shifted copies never share vertices with neighbours (their normals differ).
-            let key = if shift != 0.0 {
-                (u32::MAX - (3 * t + k as u32), 0)
-            } else {
-                (tri[k], s.atlas.chart[t as usize])
-            };
-            let next = (verts.len() / if uv { 5 } else { 3 }) as u32;
-            f[k] = *local.entry(key).or_insert_with(|| {
-                let p = s.mesh.vertices[tri[k] as usize] + n * shift;
-                verts.extend(p.to_array());
-                if uv {
-                    verts.extend(s.atlas.uv[t as usize][k].to_array());
-                }
-                next
-            });
-        }
-        faces.push(f);
-    }
-    let nv = verts.len() / if uv { 5 } else { 3 };
+    let m = s.indexed(tris, shift);
+    let nv = m.positions.len();
     let mut h = String::from("ply\nformat binary_little_endian 1.0\ncomment written by fipt\n");
     let _ = writeln!(h, "element vertex {nv}");
     h.push_str("property float x\nproperty float y\nproperty float z\n");
     if uv {
         h.push_str("property float u\nproperty float v\n");
     }
-    let _ = writeln!(h, "element face {}", faces.len());
+    let _ = writeln!(h, "element face {}", m.faces.len());
     h.push_str("property list uchar int vertex_indices\n");
     h.push_str("end_header\n");
     let mut out = h.into_bytes();
-    for v in &verts {
-        out.extend_from_slice(&v.to_le_bytes());
+    for (p, t) in m.positions.iter().zip(&m.uvs) {
+        let vertex = if uv {
+            &[p.x, p.y, p.z, t.x, t.y][..]
+        } else {
+            &[p.x, p.y, p.z][..]
+        };
+        for v in vertex {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
     }
-    for f in &faces {
+    for f in &m.faces {
         out.push(3);
         for i in f {
             out.extend_from_slice(&(*i as i32).to_le_bytes());
@@ -135,10 +117,7 @@ pub fn write(s: &Scene, pngs: &Pngs, dir: &Path) -> Result<Vec<String>> {
             "    <texture type=\"bitmap\" id=\"{id}\">\n        <string name=\"filename\" value=\"{file}\"/>\n        <boolean name=\"raw\" value=\"{raw}\"/>\n        <string name=\"wrap_mode\" value=\"clamp\"/>\n    </texture>\n"
         );
     }
-    let mut by_group: Vec<Vec<u32>> = vec![Vec::new(); s.groups.len()];
-    for t in 0..s.mesh.num_triangles() {
-        by_group[s.group_of[t] as usize].push(t as u32);
-    }
+    let by_group = s.triangles_by_group();
     let sides: std::collections::HashMap<u32, (EmitterSides, [f32; 3])> = s
         .emitters
         .iter()

@@ -28,7 +28,6 @@ use fipt_bake::materials::{MaterialSource, TrueMaterials};
 use fipt_core::scene::meta::SceneMeta;
 use fipt_core::scene::{Camera, Mesh};
 use glam::Vec3;
-use serde_json::json;
 use std::path::{Path, PathBuf};
 
 /// What `export` writes.
@@ -108,6 +107,58 @@ pub struct Scene<'a> {
     pub cameras: &'a [(String, Camera)],
     /// fipt's version, for the files' generator fields.
     pub generator: String,
+}
+
+/// Triangles as an indexed mesh for a writer: one vertex per (mesh vertex, chart), carrying its
+/// chart's UV, so that vertices are shared within a chart and split across charts.
+pub struct Indexed {
+    pub positions: Vec<Vec3>,
+    pub uvs: Vec<glam::Vec2>,
+    pub faces: Vec<[u32; 3]>,
+}
+
+impl Scene<'_> {
+    /// The triangles of each material group, in mesh order.
+    pub fn triangles_by_group(&self) -> Vec<Vec<u32>> {
+        let mut by_group = vec![Vec::new(); self.groups.len()];
+        for (t, &g) in self.group_of.iter().enumerate() {
+            by_group[g as usize].push(t as u32);
+        }
+        by_group
+    }
+
+    /// The triangles `tris` indexed. With `shift` ≠ 0 each corner gets a vertex of its own,
+    /// moved by `shift` along its face's winding normal (the copies share no vertex with their
+    /// neighbours, whose normals differ).
+    pub fn indexed(&self, tris: &[u32], shift: f32) -> Indexed {
+        let mut out = Indexed {
+            positions: Vec::new(),
+            uvs: Vec::new(),
+            faces: Vec::with_capacity(tris.len()),
+        };
+        let mut local: std::collections::HashMap<(u32, u32), u32> = Default::default();
+        for &t in tris {
+            let tri = self.mesh.triangles[t as usize];
+            let n = self.mesh.normal(t as usize);
+            let mut f = [0u32; 3];
+            for (k, &v) in tri.iter().enumerate() {
+                let key = if shift != 0.0 {
+                    (u32::MAX - (3 * t + k as u32), 0)
+                } else {
+                    (v, self.atlas.chart[t as usize])
+                };
+                let next = out.positions.len() as u32;
+                f[k] = *local.entry(key).or_insert_with(|| {
+                    out.positions
+                        .push(self.mesh.vertices[v as usize] + n * shift);
+                    out.uvs.push(self.atlas.uv[t as usize][k]);
+                    next
+                });
+            }
+            out.faces.push(f);
+        }
+        out
+    }
 }
 
 /// Groups per triangle: one per part (or one `surface` group), and `<part>.light` for the
@@ -307,12 +358,7 @@ fn load(job: &ExportJob) -> Result<Loaded> {
             })
         }
         Source::Model { name_or_dir, zoo } => {
-            let dir = crate::zoo::Zoo::new(zoo).locate(name_or_dir)?;
-            let device = job.backend.device().map_err(anyhow::Error::msg)?;
-            let mut m = crate::scene_model::SceneModel::load(&dir, &device)?;
-            if job.backend.is_gpu() {
-                m.model.upload_table();
-            }
+            let m = crate::scene_model::SceneModel::open(name_or_dir, zoo, job.backend)?;
             // The scene folder: given, else the one the model was recovered from if it is still
             // there and holds the same mesh.
             let scene = match &job.scene {
@@ -338,7 +384,7 @@ fn load(job: &ExportJob) -> Result<Loaded> {
                         bail!(
                             "{}: the scene's mesh differs from the model's ({}): its parts and cameras would not fit",
                             s.display(),
-                            dir.display()
+                            m.dir.display()
                         );
                     }
                 }
@@ -348,8 +394,14 @@ fn load(job: &ExportJob) -> Result<Loaded> {
                 }
             }
             let n = m.mesh.num_triangles();
-            let emitters = m
-                .emitters
+            let crate::scene_model::SceneModel {
+                manifest,
+                model,
+                mesh,
+                emitters,
+                ..
+            } = m;
+            let emitters = emitters
                 .iter()
                 .map(|e| Emission {
                     triangle: e.triangle,
@@ -357,15 +409,11 @@ fn load(job: &ExportJob) -> Result<Loaded> {
                     sides: e.observed_sides(),
                 })
                 .collect();
-            let size = m.manifest.image_size;
+            let size = manifest.image_size;
             Ok(Loaded {
-                name: m.manifest.name.clone(),
-                materials: Box::new(crate::learned::LearnedMaterials::new(
-                    m.model.clone(),
-                    n,
-                    &[],
-                )),
-                mesh: m.mesh,
+                name: manifest.name,
+                materials: Box::new(crate::learned::LearnedMaterials::new(model, n, &[])),
+                mesh,
                 emitters,
                 meta,
                 image_size: Some((size[0], size[1])),
@@ -527,9 +575,4 @@ pub fn export(job: &ExportJob) -> Result<ExportReport> {
     let _ = std::fs::remove_dir_all(&stage);
     moved?;
     Ok(report)
-}
-
-/// The report as the JSON `export --json` prints.
-pub fn report_json(r: &ExportReport) -> serde_json::Value {
-    json!(r)
 }
