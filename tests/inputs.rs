@@ -73,7 +73,7 @@ fn example(kind: Kind) -> Value {
             "camera_angle_x": 1.2,
             "fl_x": 100.0, "fl_y": 100.0, "cx": 48.0, "cy": 36.0, "w": 96, "h": 72,
             "frames": [
-                {"file_path": "a", "transform_matrix": MATRIX},
+                {"file_path": "a", "transform_matrix": MATRIX, "exposure": 0.5},
                 {"file_path": "b", "transform_matrix": MATRIX,
                  "fl_x": 90.0, "fl_y": 90.0, "cx": 47.0, "cy": 35.0, "w": 96, "h": 72}
             ]

@@ -103,6 +103,7 @@ fn dataset(n: usize, seed: u64) -> Batch {
             .iter()
             .map(|x| if emitter(*x) { 4 } else { part(*x) as i32 })
             .collect(),
+        cap: Vec::new(),
         x_unit,
         shadings,
         gt,

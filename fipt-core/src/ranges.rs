@@ -243,6 +243,8 @@ pub const FIELDS: &[Field] = &[
             ..UNIT
         }, "a mask value"),
     f(C, "emitters.min_unexplained", UNIT, "a share"),
+    f(C, "ldr.solve_pixels", int(1.0, 1e7), "pixels"),
+    f(C, "ldr.light_samples", int(1.0, 1e5), "rays per pixel and lamp"),
     f(C, "refine.rounds", int(0.0, 16.0), "rounds"),
     f(C, "refine.lambda_d", WEIGHT, "a loss weight (or null)"),
     f(C, "refine.lambda_d_warmup", UNIT, "a share of the steps (or null)"),
@@ -307,6 +309,7 @@ pub const FIELDS: &[Field] = &[
             ..closed(0.0, std::f64::consts::PI)
         }, "radians"),
     f(T, "frames[].transform_matrix[][]", COORD, "camera to world"),
+    f(T, "frames[].exposure", above(0.0, 1e6), "relative exposure of an LDR photo"),
     f(T, "fl_x", above(0.0, 1e6), "pixels"),
     f(T, "fl_y", above(0.0, 1e6), "pixels"),
     f(T, "cx", COORD, "pixels"),
@@ -322,9 +325,14 @@ pub fn field(kind: Kind, path: &str) -> Option<&'static Field> {
     let generic = strip_indices(path);
     let generic = match kind {
         Kind::Relight => generic.replacen("new_emitters[].", "new_emitter.", 1),
-        Kind::Transforms if !generic.starts_with("frames[].transform_matrix") => generic
-            .strip_prefix("frames[].")
-            .map_or(generic.clone(), str::to_string),
+        Kind::Transforms
+            if !generic.starts_with("frames[].transform_matrix")
+                && generic != "frames[].exposure" =>
+        {
+            generic
+                .strip_prefix("frames[].")
+                .map_or(generic.clone(), str::to_string)
+        }
         _ => generic,
     };
     FIELDS

@@ -116,6 +116,9 @@ pub struct CheckReport {
     /// Per split: the views that show an emitter (None without `Emit/`).
     pub emitter_views: BTreeMap<String, Option<Vec<usize>>>,
     pub renderer_agreement: BTreeMap<String, RendererAgreement>,
+    /// LDR photos (PNG, JPEG): per split, each view's share of pixels with a clipped channel
+    /// (None: HDR photos).
+    pub ldr_clipped: Option<BTreeMap<String, Vec<f64>>>,
     pub problems: Vec<String>,
 }
 
@@ -207,6 +210,19 @@ pub fn check_scene(scene: &Path) -> Result<CheckReport> {
         );
     }
     let views: usize = splits.iter().map(|s| s.views.len()).sum();
+    let ldr_clipped = ds.is_ldr().then(|| {
+        splits
+            .iter()
+            .map(|s| {
+                let shares = s
+                    .views
+                    .iter()
+                    .map(|v| v.ldr.as_ref().map_or(0.0, |f| f.clipped_share()))
+                    .collect();
+                (s.name.clone(), shares)
+            })
+            .collect()
+    });
     Ok(CheckReport {
         scene: scene.display().to_string(),
         layout: format!("{:?}", ds.layout),
@@ -224,6 +240,7 @@ pub fn check_scene(scene: &Path) -> Result<CheckReport> {
         semantic_agreement_mean: sem.as_ref().map(|t| t.1),
         emitter_views: seen,
         renderer_agreement: renderer,
+        ldr_clipped,
         problems,
     })
 }
@@ -253,6 +270,20 @@ impl CheckReport {
             match v {
                 Some(v) => println!("emitters  {split}: seen in views {v:?}"),
                 None => println!("emitters  {split}: no Emit/ maps"),
+            }
+        }
+        match &self.ldr_clipped {
+            None => println!("photos    HDR (EXR)"),
+            Some(c) => {
+                for (split, shares) in c {
+                    let clipped: Vec<usize> =
+                        (0..shares.len()).filter(|&k| shares[k] > 0.0).collect();
+                    let mean = shares.iter().sum::<f64>() / shares.len().max(1) as f64;
+                    println!(
+                        "photos    {split}: LDR (8-bit), {:.2} % of pixels clipped on average; views with clipped regions: {clipped:?}",
+                        100.0 * mean
+                    );
+                }
             }
         }
         for (split, r) in &self.renderer_agreement {

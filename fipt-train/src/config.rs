@@ -29,6 +29,8 @@ pub struct Config {
     pub maps: MapsSection,
     pub render: RenderSection,
     pub checkpoint: CheckpointSection,
+    /// What changes for LDR photos (read only when the scene's photos are PNG or JPEG).
+    pub ldr: LdrSection,
 }
 
 /// Shading refinement and the alternation (paper §4.3; reference §2.5–2.6).
@@ -89,6 +91,33 @@ impl Default for Config {
             maps: MapsSection::default(),
             render: RenderSection::default(),
             checkpoint: CheckpointSection::default(),
+            ldr: LdrSection::default(),
+        }
+    }
+}
+
+/// LDR photos (`crate::ldr`, `docs/ldr.md`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LdrSection {
+    /// Estimate the exposure of frames whose capture does not give one (false: all 1).
+    pub estimate_exposure: bool,
+    /// Solve the radiance of clipped emitters from the pixels they light (false: keep the clip
+    /// level, IRIS's extraction before its optimisation).
+    pub solve_emitters: bool,
+    /// Pixels of the emitter solve.
+    pub solve_pixels: usize,
+    /// Light samples per pixel and lamp in the emitter solve.
+    pub light_samples: usize,
+}
+
+impl Default for LdrSection {
+    fn default() -> Self {
+        Self {
+            estimate_exposure: true,
+            solve_emitters: true,
+            solve_pixels: 20_000,
+            light_samples: 64,
         }
     }
 }

@@ -14,6 +14,7 @@ pub mod export;
 pub mod html_report;
 pub mod image_metrics;
 pub mod interrupt;
+pub mod ldr;
 pub mod learned;
 pub mod lock;
 pub mod output;

@@ -175,6 +175,42 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// The LDR twin of an HDR scene: every photo through a camera response, an exposure per
+    /// view and 8-bit PNG or JPEG, the rest of the folder unchanged; OUT/ldr.json holds the
+    /// truth.
+    Ldr {
+        /// The HDR scene folder.
+        #[arg(long)]
+        scene: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// The response: srgb, gamma:G or gamma:R,G,B.
+        #[arg(long, default_value = "srgb")]
+        response: fipt_train::ldr::twin::CurveSpec,
+        /// The base exposure (default: the one that clips --clip of the train pixels and every
+        /// true emitter pixel).
+        #[arg(long)]
+        exposure: Option<f64>,
+        /// The share of train pixels the default exposure clips at least.
+        #[arg(long, default_value_t = 0.01)]
+        clip: f64,
+        /// Each view's exposure is 2^u times the base, u uniform in [-STOPS, STOPS].
+        #[arg(long, default_value_t = 0.0)]
+        stops: f64,
+        /// Write each frame's relative exposure as `exposure` in transforms.json.
+        #[arg(long)]
+        give_exposure: bool,
+        #[arg(long, value_enum, default_value = "png")]
+        format: fipt_train::ldr::twin::LdrFormat,
+        /// JPEG quality.
+        #[arg(long, default_value_t = 90, value_parser = flag_range(1, 100))]
+        quality: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Print ldr.json instead of a summary.
+        #[arg(long)]
+        json: bool,
+    },
     /// The model zoo: scene models recovered by `run`, by name.
     Zoo {
         /// The zoo folder (default: $FIPT_ZOO, else ./zoo).
@@ -624,6 +660,49 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             };
             let r = fipt_train::suite::run_suite(&job)?;
             print_json_or(json, &r, || {})
+        }
+        Cmd::Ldr {
+            scene,
+            out,
+            response,
+            exposure,
+            clip,
+            stops,
+            give_exposure,
+            format,
+            quality,
+            seed,
+            json,
+        } => {
+            let job = fipt_train::ldr::TwinJob {
+                scene,
+                out: out.clone(),
+                response,
+                exposure,
+                clip_share: clip,
+                stops,
+                give_exposure,
+                format,
+                quality: quality as u8,
+                seed,
+            };
+            let t = fipt_train::ldr::make_twin(&job)?;
+            print_json_or(json, &t, || {
+                for s in &t.splits {
+                    let n = s.clipped_share.len().max(1) as f64;
+                    let lamps: Vec<f64> = s.emitter_clipped.iter().flatten().copied().collect();
+                    println!(
+                        "{}/{}: {} frames, {:.2} % of pixels clipped, lamps clipped in {} of {} views that show one (worst {:.0} % of a view's lamp pixels)",
+                        out.display(),
+                        s.name,
+                        s.exposures.len(),
+                        100.0 * s.clipped_share.iter().sum::<f64>() / n,
+                        lamps.iter().filter(|&&x| x >= 0.99).count(),
+                        lamps.len(),
+                        100.0 * lamps.iter().cloned().fold(1.0, f64::min)
+                    );
+                }
+            })
         }
         Cmd::DefaultConfig => print_json_or(true, &fipt_train::config::Config::default(), || {}),
         Cmd::Bench { what } => bench_cmd(what),

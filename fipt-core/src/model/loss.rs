@@ -35,6 +35,14 @@ pub fn color_loss(c: Tensor<2>, gt: Tensor<2>) -> Tensor<1> {
     (tonemap(c) - tonemap(gt)).powi_scalar(2).mean()
 }
 
+/// The render as an LDR photo records it (IRIS's clamp, `iris-reference.md` §1): min(C, cap)
+/// per channel, where `cap` is the clip level of a clipped channel and `CAP_NONE` elsewhere.
+/// A clipped channel of the photo (`gt` = cap) then costs nothing once C reaches it and pulls C
+/// up below it, without pulling it towards the clip level from above.
+pub fn clip_to(c: Tensor<2>, cap: Tensor<2>) -> Tensor<2> {
+    c.min_pair(cap)
+}
+
 /// Eq. 16: L_e = λ_e · mean |raw| (on the raw mask output, reference §5.5).
 pub fn emission_loss(raw: Tensor<2>, weight: f32) -> Tensor<1> {
     raw.abs().mean().mul_scalar(weight)

@@ -509,3 +509,55 @@ fn host_material_mlp_matches_burn_with_input_gradient() {
     let e = max_rel(&dx.unwrap(), &want_dx);
     assert!(e < 1e-4, "input gradient differs by {e}");
 }
+
+/// The LDR data term (`loss::clip_to`): a clipped channel whose render is above its clip level
+/// costs nothing and gets no gradient; below it, it costs and pulls exactly as an unclipped
+/// channel would; unclipped channels (cap `CAP_NONE`) are untouched. Checked against central
+/// finite differences of the loss.
+#[test]
+fn clipped_channels_pull_up_only() {
+    use super::step::CAP_NONE;
+    let ad = dev().autodiff();
+    // Pixel 0: clipped at 2.0 on R (render 3.0, above) and G (render 1.2, below); B unclipped.
+    let c = [3.0f32, 1.2, 0.4];
+    let gt = [2.0f32, 2.0, 0.3];
+    let cap = [2.0f32, 2.0, CAP_NONE];
+    let loss_of = |c: &[f32]| -> f32 {
+        let l = loss::color_loss(
+            loss::clip_to(t2(c, [1, 3], &dev()), t2(&cap, [1, 3], &dev())),
+            t2(&gt, [1, 3], &dev()),
+        );
+        l.into_data().try_to_vec::<f32>().unwrap()[0]
+    };
+    let ct = t2(&c, [1, 3], &ad).require_grad();
+    let l = loss::color_loss(
+        loss::clip_to(ct.clone(), t2(&cap, [1, 3], &ad)),
+        t2(&gt, [1, 3], &ad),
+    );
+    let grads = l.backward();
+    let g = to_vec(ct.grad(&grads).unwrap());
+    assert_eq!(
+        g[0], 0.0,
+        "a clipped channel above its level gets no gradient"
+    );
+    assert!(
+        g[1] < 0.0,
+        "a clipped channel below its level is pulled up: {}",
+        g[1]
+    );
+    for k in 0..3 {
+        let h = 1e-3;
+        let (mut up, mut dn) = (c, c);
+        up[k] += h;
+        dn[k] -= h;
+        let fd = (loss_of(&up) - loss_of(&dn)) / (2.0 * h);
+        assert!(
+            (fd - g[k]).abs() < 1e-3 + 1e-2 * fd.abs(),
+            "channel {k}: {} against {fd}",
+            g[k]
+        );
+    }
+    // Without the cap, the same render costs more: the R channel is pulled down towards 2.
+    let plain = loss::color_loss(t2(&c, [1, 3], &dev()), t2(&gt, [1, 3], &dev()));
+    assert!(plain.into_data().try_to_vec::<f32>().unwrap()[0] > loss_of(&c));
+}

@@ -4,7 +4,8 @@
 //! Owns: folder layouts, file naming, cross-file validation (sizes, counts). Must not touch: ray
 //! tracing, training.
 
-use super::{Camera, Image, Intrinsics, Mesh, meta::SceneMeta};
+use super::ldr::{LdrFrame, is_ldr_ext, read_ldr};
+use super::{Camera, Image, Intrinsics, Mesh, Response, meta::SceneMeta};
 use crate::io::{FileError, Result, read_text};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -118,8 +119,12 @@ pub struct View {
     /// Frame index within its split (the `k` of the file names).
     pub index: usize,
     pub camera: Camera,
-    /// HDR radiance, 3 channels.
+    /// Linear radiance, 3 channels: the HDR photo, or an LDR photo linearised (at load with the
+    /// sRGB curve and the frame's given exposure, or 1; a run re-linearises it with the
+    /// response and exposures it estimates).
     pub image: Image,
+    /// The 8-bit photo when the view's photo is LDR (PNG, JPEG).
+    pub ldr: Option<LdrFrame>,
     pub maps: BTreeMap<MapKind, Image>,
 }
 
@@ -155,6 +160,11 @@ impl Split {
     /// True when every view has the map.
     pub fn has_map(&self, kind: MapKind) -> bool {
         !self.views.is_empty() && self.views.iter().all(|v| v.maps.contains_key(&kind))
+    }
+
+    /// True when the photos are 8-bit LDR (the loader never mixes the two kinds).
+    pub fn is_ldr(&self) -> bool {
+        self.views.first().is_some_and(|v| v.ldr.is_some())
     }
 }
 
@@ -242,6 +252,24 @@ impl Dataset {
                 (train, val)
             }
         };
+        if let Some(v) = val.as_ref().filter(|v| v.is_ldr() != train.is_ldr()) {
+            let kind = |s: &Split| {
+                if s.is_ldr() {
+                    "LDR (PNG/JPEG)"
+                } else {
+                    "HDR (EXR)"
+                }
+            };
+            return Err(FileError::new(
+                root,
+                format!(
+                    "mixed HDR and LDR photos: the train photos are {} but the {} photos are {}",
+                    kind(&train),
+                    v.name,
+                    kind(v)
+                ),
+            ));
+        }
         let meta_path = root.join("scene_meta.json");
         let meta = if meta_path.exists() {
             let m = SceneMeta::load(&meta_path)?;
@@ -274,6 +302,11 @@ impl Dataset {
             val,
             meta,
         })
+    }
+
+    /// True when the photos are 8-bit LDR.
+    pub fn is_ldr(&self) -> bool {
+        self.train.is_ldr()
     }
 
     /// The splits present, train first.
@@ -357,8 +390,9 @@ fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
     Ok(frames)
 }
 
-/// Checks that `dir` holds the EXR file `name(k)` of every frame `k < n` that `lister` lists,
-/// naming the missing files (and, with `strict`, any EXR file no frame names) in the error.
+/// Checks that `dir` holds the file `name(k)` of every frame `k < n` that `lister` lists,
+/// naming the missing files (and, with `strict`, any file of the same extension that no frame
+/// names) in the error.
 fn check_frames(
     dir: &Path,
     n: usize,
@@ -367,12 +401,18 @@ fn check_frames(
     strict: bool,
 ) -> Result<()> {
     let rd = std::fs::read_dir(dir).map_err(|e| FileError::new(dir, e.to_string()))?;
+    let first = name(0);
+    let ext = Path::new(&first)
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("exr")
+        .to_string();
     let present: std::collections::BTreeSet<String> = rd
         .filter_map(|e| e.ok())
         .filter(|e| {
             e.path()
                 .extension()
-                .is_some_and(|x| x.eq_ignore_ascii_case("exr"))
+                .is_some_and(|x| x.eq_ignore_ascii_case(&ext))
         })
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
@@ -411,8 +451,9 @@ fn check_frames(
         return Err(FileError::new(
             dir,
             format!(
-                "{} EXR file(s) that no frame of {} names ({n} frames): {}",
+                "{} {} file(s) that no frame of {} names ({n} frames): {}",
                 extra.len(),
+                ext.to_uppercase(),
                 lister.display(),
                 list(&extra)
             ),
@@ -439,14 +480,110 @@ pub fn image_file(k: usize) -> String {
     format!("{k:03}_0001.exr")
 }
 
+/// The photo extensions fipt reads: HDR first.
+const PHOTO_EXTS: [&str; 4] = ["exr", "png", "jpg", "jpeg"];
+
+/// The extension of the photos of a FIPT image folder (`exr`, `png`, `jpg` or `jpeg`, as
+/// spelled on disk), from the files named `{k:03}_0001.<ext>`. HDR and LDR photos mixed in
+/// one folder are an error naming one of each.
+fn photo_ext(dir: &Path) -> Result<String> {
+    let rd = std::fs::read_dir(dir).map_err(|e| FileError::new(dir, e.to_string()))?;
+    let mut seen: BTreeMap<String, String> = BTreeMap::new();
+    for e in rd.filter_map(|e| e.ok()) {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some((stem, ext)) = name.rsplit_once('.') else {
+            continue;
+        };
+        if stem.len() == 8
+            && stem.ends_with("_0001")
+            && stem[..3].bytes().all(|b| b.is_ascii_digit())
+            && PHOTO_EXTS.contains(&ext.to_ascii_lowercase().as_str())
+        {
+            seen.entry(ext.to_string()).or_insert(name);
+        }
+    }
+    let hdr = seen.iter().find(|(e, _)| e.eq_ignore_ascii_case("exr"));
+    let ldr = seen.iter().find(|(e, _)| !e.eq_ignore_ascii_case("exr"));
+    match (hdr, ldr) {
+        (Some((_, h)), Some((_, l))) => Err(FileError::new(
+            dir,
+            format!(
+                "mixed HDR and LDR photos ({h} and {l}): a scene's photos must all be EXR or all 8-bit PNG/JPEG"
+            ),
+        )),
+        (Some((e, _)), None) => Ok(e.clone()),
+        (None, Some(_)) => {
+            if seen.len() > 1 {
+                let names: Vec<&String> = seen.values().collect();
+                return Err(FileError::new(
+                    dir,
+                    format!(
+                        "photos of more than one format ({}): use one",
+                        names
+                            .iter()
+                            .map(|s| s.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                ));
+            }
+            Ok(seen.keys().next().expect("one").clone())
+        }
+        (None, None) => Ok("exr".to_string()),
+    }
+}
+
+/// Reads a photo, HDR (EXR) or LDR (PNG, JPEG, by extension), checking its size when `size`
+/// is given. An LDR photo comes back linearised with the sRGB curve at `exposure` (or 1).
+fn read_any_photo(
+    path: &Path,
+    size: Option<(usize, usize)>,
+    exposure: Option<f64>,
+) -> Result<(Image, Option<LdrFrame>)> {
+    if !is_ldr_ext(path) {
+        let img = read_photo_unsized(path)?;
+        if let Some(s) = size {
+            check_size(&img, path, s)?;
+        }
+        return Ok((img, None));
+    }
+    let mut f = read_ldr(path)?;
+    f.exposure = exposure;
+    let image = f.linearise(&Response::srgb(), exposure.unwrap_or(1.0));
+    if let Some(s) = size {
+        check_size(&image, path, s)?;
+    }
+    Ok((image, Some(f)))
+}
+
+/// The `exposure` of frame `k` of a `transforms.json`, where given.
+fn frame_exposure(f: &Value, path: &Path, k: usize) -> Result<Option<f64>> {
+    match f.get("exposure") {
+        None => Ok(None),
+        Some(v) => match v.as_f64() {
+            Some(e) if e > 0.0 && e.is_finite() => Ok(Some(e)),
+            _ => Err(FileError::new(
+                path,
+                format!("frame {k}: 'exposure' must be a positive number (relative exposure)"),
+            )),
+        },
+    }
+}
+
 /// Reads one map file and keeps the channels its kind needs.
 fn read_map(path: &Path, kind: MapKind, size: (usize, usize)) -> Result<Image> {
     read_sized(path, kind.channels(), kind.is_label(), size)
 }
 
 /// Reads an HDR photo (3 channels).
-fn read_photo(path: &Path, size: (usize, usize)) -> Result<Image> {
-    read_sized(path, 3, false, size)
+fn read_photo_unsized(path: &Path) -> Result<Image> {
+    let img = Image::read_exr(path)?;
+    Ok(if img.channels == 1 {
+        let data = img.data.iter().flat_map(|&v| [v, v, v]).collect();
+        Image::from_data(img.width, img.height, 3, data)
+    } else {
+        img
+    })
 }
 
 fn read_sized(path: &Path, channels: usize, is_label: bool, size: (usize, usize)) -> Result<Image> {
@@ -525,7 +662,9 @@ fn load_synthetic_split(
     if !img_dir.is_dir() {
         return Err(FileError::new(&img_dir, "image folder not found"));
     }
-    check_frames(&img_dir, frames.len(), image_file, &tpath, true)?;
+    let ext = photo_ext(&img_dir)?;
+    let photo = |k: usize| format!("{k:03}_0001.{ext}");
+    check_frames(&img_dir, frames.len(), photo, &tpath, true)?;
     for &kind in &opts.maps {
         let folder = dir.join(kind.folder());
         if folder.is_dir() {
@@ -537,12 +676,16 @@ fn load_synthetic_split(
         .enumerate()
         .map(|(k, f)| json_matrix4(f, &tpath, k))
         .collect::<Result<_>>()?;
+    let exposures: Vec<Option<f64>> = frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| frame_exposure(f, &tpath, k))
+        .collect::<Result<_>>()?;
     // The size is set by the first train image (as the reference does).
-    let first = img_dir.join(image_file(0));
     let size = match size {
         Some(s) => s,
         None => {
-            let img = Image::read_exr(&first)?;
+            let (img, _) = read_any_photo(&img_dir.join(photo(0)), None, None)?;
             (img.width, img.height)
         }
     };
@@ -550,13 +693,14 @@ fn load_synthetic_split(
         .par_iter()
         .enumerate()
         .map(|(k, m)| {
-            let path = img_dir.join(image_file(k));
-            let image = read_photo(&path, size)?;
+            let path = img_dir.join(photo(k));
+            let (image, ldr) = read_any_photo(&path, Some(size), exposures[k])?;
             let maps = load_maps(&dir, k, opts, size)?;
             Ok(View {
                 index: k,
                 camera: Camera::from_fipt_c2w(*m, fov, size.0, size.1),
                 image,
+                ldr,
                 maps,
             })
         })
@@ -633,20 +777,22 @@ fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
     if !img_dir.is_dir() {
         return Err(FileError::new(&img_dir, "image folder not found"));
     }
-    check_frames(&img_dir, n, image_file, &cam_path, true)?;
+    let ext = photo_ext(&img_dir)?;
+    let photo = |k: usize| format!("{k:03}_0001.{ext}");
+    check_frames(&img_dir, n, photo, &cam_path, true)?;
     for &kind in &opts.maps {
         let folder = root.join(kind.folder());
         if folder.is_dir() {
             check_frames(&folder, n, |k| kind.file_name(k), &cam_path, false)?;
         }
     }
-    let first = Image::read_exr(&img_dir.join(image_file(0)))?;
+    let (first, _) = read_any_photo(&img_dir.join(photo(0)), None, None)?;
     let size = (first.width, first.height);
     let views = (0..n)
         .into_par_iter()
         .map(|k| {
-            let path = img_dir.join(image_file(k));
-            let mut image = read_photo(&path, size)?;
+            let path = img_dir.join(photo(k));
+            let (mut image, ldr) = read_any_photo(&path, Some(size), None)?;
             image.data.iter_mut().for_each(|v| *v = v.max(0.0));
             let o = DVec3::from(cams[3 * k]);
             let target = DVec3::from(cams[3 * k + 1]);
@@ -674,6 +820,7 @@ fn load_real(root: &Path, opts: &LoadOptions) -> Result<Split> {
                 index: k,
                 camera: Camera::from_look_at(o, target, up, kmat, size.0, size.1),
                 image,
+                ldr,
                 maps,
             })
         })
@@ -713,9 +860,14 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
                 .ok_or_else(|| FileError::new(&tpath, format!("frame {k}: missing 'file_path'")))?;
             let mut path = root.join(fp);
             if path.extension().is_none() {
-                path.set_extension("exr");
+                // The first of `PHOTO_EXTS` present, EXR by default (named in the error).
+                path = PHOTO_EXTS
+                    .iter()
+                    .map(|e| path.with_extension(e))
+                    .find(|p| p.is_file())
+                    .unwrap_or_else(|| path.with_extension("exr"));
             }
-            let image = read_photo(&path, (w, h))?;
+            let (image, ldr) = read_any_photo(&path, Some((w, h)), frame_exposure(f, &tpath, k)?)?;
             let m = json_matrix4(f, &tpath, k)?;
             let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
             let mut maps = BTreeMap::new();
@@ -728,14 +880,32 @@ fn load_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Split> {
                     );
                 }
             }
-            Ok(View {
-                index: k,
-                camera: Camera::from_opengl_c2w(m, k_px, w, h),
-                image,
-                maps,
-            })
+            Ok((
+                View {
+                    index: k,
+                    camera: Camera::from_opengl_c2w(m, k_px, w, h),
+                    image,
+                    ldr,
+                    maps,
+                },
+                path,
+            ))
         })
-        .collect::<Result<Vec<View>>>()?;
+        .collect::<Result<Vec<(View, PathBuf)>>>()?;
+    if let (Some((_, h)), Some((_, l))) = (
+        views.iter().find(|(v, _)| v.ldr.is_none()),
+        views.iter().find(|(v, _)| v.ldr.is_some()),
+    ) {
+        return Err(FileError::new(
+            &tpath,
+            format!(
+                "mixed HDR and LDR photos ({} and {}): a scene's photos must all be EXR or all 8-bit PNG/JPEG",
+                h.display(),
+                l.display()
+            ),
+        ));
+    }
+    let views: Vec<View> = views.into_iter().map(|(v, _)| v).collect();
     let (w, h) = (views[0].image.width, views[0].image.height);
     if let Some(v) = views
         .iter()

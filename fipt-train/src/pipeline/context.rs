@@ -44,6 +44,10 @@ pub struct RunContext<'a> {
     /// The bake's config with the run's seed, and the key of its cached shadings.
     pub bake_cfg: BakeConfig,
     pub bake_key: u64,
+    /// LDR photos: the response and exposures they were linearised with, and (after round 0)
+    /// the solve of the clipped emitters.
+    pub ldr: Option<crate::ldr::Calibration>,
+    pub light_solve: Option<crate::ldr::lights::LightSolve>,
     pub times: StageTimes,
     clock: Instant,
     /// OUT's lock, held for the run's life (`crate::lock`).
@@ -60,9 +64,12 @@ impl<'a> RunContext<'a> {
         opts: &'a RunOptions,
     ) -> Result<Self> {
         let clock = Instant::now();
-        let ds = Dataset::load(scene, &load_opts())?;
+        let mut ds = Dataset::load(scene, &load_opts())?;
         let lock = crate::lock::DirLock::acquire(out)?;
         let accel = Accel::build(&ds.mesh);
+        let ldr = ds
+            .is_ldr()
+            .then(|| crate::ldr::calibrate(&mut ds, &accel, cfg.ldr.estimate_exposure));
         let bake_cfg = cfg.bake_config();
         let bake_key = crate::cache::cache_key(&ds, &bake_cfg)?;
         Ok(Self {
@@ -75,6 +82,8 @@ impl<'a> RunContext<'a> {
             accel,
             bake_cfg,
             bake_key,
+            ldr,
+            light_solve: None,
             times: StageTimes::default(),
             clock,
             _lock: lock,

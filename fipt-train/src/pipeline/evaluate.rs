@@ -368,6 +368,7 @@ mod tests {
             index: 3,
             camera: Camera::look_at_fov(DVec3::ZERO, DVec3::Z, DVec3::Y, 1.0, W, H),
             image: Image::new(W, H, 3),
+            ldr: None,
             maps,
         }
     }

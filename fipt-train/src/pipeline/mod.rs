@@ -1,6 +1,7 @@
 //! The FIPT pipeline (paper Fig. 2), one module per role:
 //!
 //! - `context`: what the stages share (the scene, its accel, the config and seeds, the clock);
+//! - `lamps`: LDR photos only, the clipped lamps' radiance solved and filled in first;
 //! - `bake`: L′ and the baked shadings (§4.2, Eq. 9), through the shading cache;
 //! - `pixels`: the training pixels as one store; `batches`: which pixels each step sees;
 //! - `fit`: the material field and emission mask (§4.5, Eq. 12, 15–20); `hop`: a basin hop on
@@ -24,6 +25,7 @@ pub mod evaluate;
 pub mod extract;
 pub mod fit;
 pub mod hop;
+pub mod lamps;
 pub mod landscape;
 pub mod landscape_cmd;
 pub mod outputs;
@@ -64,6 +66,10 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
 /// call with the same scene, config and program continues from there with the same results.
 pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Result<RunReport> {
     let mut ctx = RunContext::load(scene, out, cfg, opts)?;
+    // LDR photos: the clipped lamps' HDR radiance, filled into the photos before the bake.
+    if ctx.ldr.is_some() && cfg.ldr.solve_emitters {
+        lamps::fill_clipped_lamps(&mut ctx)?;
+    }
     let ck = rounds::open_checkpoints(&ctx)?;
     ctx.times.load_s = ctx.lap();
     crate::output::write_json(&out.join("config.json"), cfg)?;

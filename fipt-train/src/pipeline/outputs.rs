@@ -238,6 +238,7 @@ pub fn run_report(
         crate::rerender::mean(&v.iter().filter_map(|r| r.psnr_db).collect::<Vec<_>>())
     };
     let tr = &fitted.trainer;
+    let renders_done = renders.is_some();
     RunReport {
         scene: ctx.scene.display().to_string(),
         seg_loss: setup.mode,
@@ -267,6 +268,31 @@ pub fn run_report(
         model_dir: None,
         zoo_entry: None,
         resumed: fitted.resumed.take(),
+        ldr: ctx.ldr.as_ref().map(|cal| {
+            let per_view = match (&ctx.ds.val, renders_done) {
+                (Some(val), true) => crate::ldr::report::val_psnr(
+                    val,
+                    cal,
+                    &ctx.out.join("render").join("val").join("Image"),
+                ),
+                _ => Vec::new(),
+            };
+            let relit = match (&ctx.ds.val, renders_done) {
+                (Some(val), true) => crate::ldr::report::relight_aligned(
+                    val,
+                    &ctx.out.join("render").join("val").join("Relight"),
+                ),
+                _ => None,
+            };
+            crate::ldr::report::LdrReport {
+                calibration: cal.clone(),
+                light_solve: ctx.light_solve.clone(),
+                view_psnr_ldr: crate::rerender::mean(&per_view),
+                view_psnr_ldr_per_view: per_view,
+                relight_scale: relit.map(|r| r.0),
+                relight_psnr_aligned: relit.map(|r| r.1),
+            }
+        }),
     }
 }
 

@@ -7,6 +7,7 @@
 use super::bake::Baked;
 use fipt_bake::ViewHits;
 use fipt_core::model::Batch;
+use fipt_core::model::step::CAP_NONE;
 use fipt_core::model::step::SegMode;
 use fipt_core::scene::{MapKind, SceneBox, Split};
 use fipt_core::shading::ShadingLayout;
@@ -48,6 +49,15 @@ impl PixelStore {
                 b.shadings.extend_from_slice(ShadingLayout::pixel(s, p));
                 b.gt.extend_from_slice(&v.image.data[3 * p..3 * p + 3]);
                 b.seg.push(labels[k].as_ref().map_or(0, |l| l[p]));
+                if let Some(f) = &v.ldr {
+                    for c in 0..3 {
+                        b.cap.push(if f.clipped(p, c) && !f.is_filled(p) {
+                            v.image.data[3 * p + c]
+                        } else {
+                            CAP_NONE
+                        });
+                    }
+                }
                 origin.push((k as u32, p as u32));
             }
         }
@@ -81,6 +91,7 @@ impl PixelStore {
             shadings: Vec::with_capacity(idx.len() * ShadingLayout::DIM),
             gt: Vec::with_capacity(idx.len() * 3),
             seg: Vec::with_capacity(idx.len()),
+            cap: Vec::new(),
         };
         for &i in idx {
             let i = i as usize;
@@ -90,6 +101,9 @@ impl PixelStore {
                 .extend_from_slice(ShadingLayout::pixel(&b.shadings, i));
             out.gt.extend_from_slice(&b.gt[3 * i..3 * i + 3]);
             out.seg.push(b.seg[i]);
+            if !b.cap.is_empty() {
+                out.cap.extend_from_slice(&b.cap[3 * i..3 * i + 3]);
+            }
         }
         out
     }

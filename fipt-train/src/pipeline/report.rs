@@ -85,6 +85,10 @@ impl BakeReport {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct StageTimes {
     pub load_s: f64,
+    /// LDR photos: the first fit, emitter extraction and solve of the clipped lamps (with the
+    /// clipped photos' bake).
+    #[serde(default)]
+    pub lamps_s: f64,
     pub bake_s: f64,
     /// All fits, every round.
     pub train_s: f64,
@@ -250,6 +254,9 @@ pub struct RunReport {
     /// Where this run continued an interrupted one (`pipeline::checkpoint`), if it did.
     #[serde(default)]
     pub resumed: Option<String>,
+    /// LDR photos: the calibration, the emitter solve and LDR view synthesis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ldr: Option<crate::ldr::report::LdrReport>,
 }
 
 /// `eval.json`: the scores recomputed from saved maps.

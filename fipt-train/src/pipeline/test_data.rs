@@ -16,6 +16,7 @@ pub(crate) fn store(seg: &[i32]) -> PixelStore {
             shadings: vec![0.0; n * ShadingLayout::DIM],
             gt: vec![0.0; 3 * n],
             seg: seg.to_vec(),
+            cap: Vec::new(),
         },
         origin: (0..n as u32).map(|i| (0, i)).collect(),
     }

@@ -25,7 +25,13 @@ pub struct Batch {
     pub gt: Vec<f32>,
     /// Segment id per pixel (part or semantic label).
     pub seg: Vec<i32>,
+    /// LDR photos only, 3 per pixel: the clip level of a clipped channel (where `gt` is only a
+    /// lower bound), `CAP_NONE` elsewhere; empty for HDR photos.
+    pub cap: Vec<f32>,
 }
+
+/// The `cap` of a channel that is not clipped.
+pub const CAP_NONE: f32 = 1e30;
 
 impl Batch {
     pub fn len(&self) -> usize {
@@ -48,6 +54,8 @@ pub struct DeviceStore {
     pub gt: Tensor<2>,
     pub seg: Tensor<1, Int>,
     pub n_seg: usize,
+    /// `Batch::cap` where the photos are LDR.
+    pub cap: Option<Tensor<2>>,
 }
 
 impl DeviceStore {
@@ -62,6 +70,7 @@ impl DeviceStore {
             gt: upload2(pixels.gt.clone(), [n, 3], device),
             seg: index_tensor(&seg, device),
             n_seg,
+            cap: (!pixels.cap.is_empty()).then(|| upload2(pixels.cap.clone(), [n, 3], device)),
         }
     }
 
@@ -78,6 +87,7 @@ impl DeviceStore {
             gt: rows(&self.gt),
             seg: select_int_dev(self.seg.clone(), i.clone()),
             n_seg: self.n_seg,
+            cap: self.cap.as_ref().map(rows),
         }
     }
 

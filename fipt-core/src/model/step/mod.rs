@@ -35,7 +35,7 @@ mod state;
 mod synthetic;
 mod trainer;
 
-pub use batch::{Batch, DeviceStore, StepInput};
+pub use batch::{Batch, CAP_NONE, DeviceStore, StepInput};
 pub use config::{SegMode, TrainConfig};
 pub use gradients::StepGradients;
 pub use losses::{LossParts, StepLoss};

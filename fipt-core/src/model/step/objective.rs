@@ -35,7 +35,11 @@ impl Trainer {
         let sh = Shadings::from_packed(px.t.shadings.clone());
         let (pred, spec) = render(kd, ks, mat.sigma.clone(), &sh);
         let alpha = alpha_from_raw(raw.clone());
-        let lc = loss::color_loss(composite(pred, alpha, px.t.gt.clone()), px.t.gt.clone());
+        let c = composite(pred, alpha, px.t.gt.clone());
+        let lc = match &px.t.cap {
+            None => loss::color_loss(c, px.t.gt.clone()),
+            Some(cap) => loss::color_loss(loss::clip_to(c, cap.clone()), px.t.gt.clone()),
+        };
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
         let mut ld = loss::diffuse_loss(
             mat.sigma.clone(),

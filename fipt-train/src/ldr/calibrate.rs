@@ -1,0 +1,213 @@
+//! The camera response and the per-frame exposures of LDR photos, and the photos linearised with
+//! them (L = g(I)/e) before anything reads them.
+//!
+//! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in unless a camera
+//!   says otherwise. It is not estimated yet (see `docs/ldr.md`).
+//! - **Exposure**: a frame's `exposure` where the capture gives it; else estimated. Every
+//!   surface point seen in several views has one radiance (up to its specular part), so the
+//!   log-ratio of a frame's linearised pixels to the cross-view radiance of the points they see
+//!   is that frame's log exposure. Points are keyed by (triangle, voxel of a 64³ grid); the
+//!   per-point radiance and the per-frame exposure are alternated as medians (robust to
+//!   highlights) over unclipped pixels, 8 times.
+//! - **Scale**: nothing records the absolute radiance, so the median train frame's exposure is
+//!   1: radiance is in units of that frame's clip level.
+//!
+//! Owns: those estimates and the relinearisation. Must not touch: the fit, emitter radiance.
+
+use fipt_bake::{Accel, cast_view};
+use fipt_core::scene::{Dataset, Response, Split};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// Where a split's exposures came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ExposureSource {
+    Given,
+    Estimated,
+}
+
+/// What a run assumed and estimated about its LDR photos (`OUT/ldr.json`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Calibration {
+    pub response: Response,
+    pub exposure_source: ExposureSource,
+    /// e_i of the train frames (median 1) and of the val frames.
+    pub train_exposures: Vec<f64>,
+    pub val_exposures: Vec<f64>,
+    /// The share of pixels with a clipped channel, per train frame.
+    pub clipped_share: Vec<f64>,
+}
+
+/// Voxels per side of the grid that keys surface points.
+const GRID: f32 = 64.0;
+
+/// Per-(triangle, voxel) mean linear luminance of one view's unclipped pixels (with the
+/// response, exposure 1), and the pixel count.
+fn point_means(ds: &Dataset, accel: &Accel, split: &Split, r: &Response) -> Vec<HashMap<u64, f64>> {
+    let lut = r.lut();
+    let sb = fipt_core::scene::SceneBox::from_points(&ds.mesh.vertices);
+    split
+        .views
+        .iter()
+        .map(|v| {
+            let f = v.ldr.as_ref().expect("LDR views");
+            let hits = cast_view(accel, &ds.mesh, &v.camera);
+            let mut sum: HashMap<u64, (f64, u32)> = HashMap::new();
+            for p in 0..hits.num_pixels() {
+                let t = hits.tri[p];
+                if t < 0 || f.pixel_clipped(p) {
+                    continue;
+                }
+                let y: f64 = (0..3)
+                    .map(|c| lut[c][f.codes[3 * p + c] as usize] as f64)
+                    .sum::<f64>()
+                    / 3.0;
+                if y <= 1e-4 {
+                    continue;
+                }
+                let q = (sb
+                    .to_unit(hits.position[p])
+                    .clamp(glam::Vec3::ZERO, glam::Vec3::ONE)
+                    * (GRID - 1.0))
+                    .as_uvec3();
+                let key =
+                    ((t as u64) << 24) ^ ((q.x as u64) << 16) ^ ((q.y as u64) << 8) ^ q.z as u64;
+                let e = sum.entry(key).or_default();
+                e.0 += y;
+                e.1 += 1;
+            }
+            sum.into_iter()
+                .map(|(k, (s, n))| (k, s / n as f64))
+                .collect()
+        })
+        .collect()
+}
+
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
+}
+
+/// Log exposures of `views` against per-point log radiance `radiance` (frames that share no
+/// point with it keep 0).
+fn exposures_against(views: &[HashMap<u64, f64>], radiance: &HashMap<u64, f64>) -> Vec<f64> {
+    views
+        .iter()
+        .map(|m| {
+            let mut d: Vec<f64> = m
+                .iter()
+                .filter_map(|(k, y)| radiance.get(k).map(|r| y.ln() - r))
+                .collect();
+            median(&mut d).unwrap_or(0.0)
+        })
+        .collect()
+}
+
+/// Per-point log radiance: the median over views of log y − log e.
+fn radiance_of(views: &[HashMap<u64, f64>], log_e: &[f64], min_views: usize) -> HashMap<u64, f64> {
+    let mut per: HashMap<u64, Vec<f64>> = HashMap::new();
+    for (m, le) in views.iter().zip(log_e) {
+        for (k, y) in m {
+            per.entry(*k).or_default().push(y.ln() - le);
+        }
+    }
+    per.into_iter()
+        .filter(|(_, v)| v.len() >= min_views)
+        .filter_map(|(k, mut v)| median(&mut v).map(|m| (k, m)))
+        .collect()
+}
+
+/// The train frames' exposures estimated from their overlap (median 1), and the val frames'
+/// against the train frames' radiance.
+fn estimate_exposures(ds: &Dataset, accel: &Accel, r: &Response) -> (Vec<f64>, Vec<f64>) {
+    let train = point_means(ds, accel, &ds.train, r);
+    let mut log_e = vec![0.0; train.len()];
+    for _ in 0..8 {
+        let rad = radiance_of(&train, &log_e, 2);
+        log_e = exposures_against(&train, &rad);
+        let mut m = log_e.clone();
+        let mid = median(&mut m).unwrap_or(0.0);
+        log_e.iter_mut().for_each(|e| *e -= mid);
+    }
+    let rad = radiance_of(&train, &log_e, 2);
+    let val = match &ds.val {
+        Some(v) => exposures_against(&point_means(ds, accel, v, r), &rad),
+        None => Vec::new(),
+    };
+    (
+        log_e.iter().map(|e| e.exp()).collect(),
+        val.iter().map(|e| e.exp()).collect(),
+    )
+}
+
+/// The given exposures of a split, scaled by `scale`.
+fn given(split: &Split, scale: f64) -> Option<Vec<f64>> {
+    split
+        .views
+        .iter()
+        .map(|v| v.ldr.as_ref().and_then(|f| f.exposure).map(|e| e * scale))
+        .collect()
+}
+
+/// Estimates the response and exposures of an LDR dataset and relinearises its photos with
+/// them (`View::image`). `estimate`: estimate exposures that the capture does not give (else
+/// every frame has exposure 1).
+pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration {
+    let response = Response::srgb();
+    let train_given = given(&ds.train, 1.0);
+    let (source, train_e, val_e) = match train_given {
+        Some(t) => {
+            let mut m = t.clone();
+            let scale = 1.0 / median(&mut m).unwrap_or(1.0);
+            let val = ds
+                .val
+                .as_ref()
+                .map(|v| given(v, scale).unwrap_or_else(|| vec![1.0; v.views.len()]))
+                .unwrap_or_default();
+            (
+                ExposureSource::Given,
+                t.iter().map(|e| e * scale).collect(),
+                val,
+            )
+        }
+        None if estimate => {
+            let (t, v) = estimate_exposures(ds, accel, &response);
+            (ExposureSource::Estimated, t, v)
+        }
+        None => (
+            ExposureSource::Estimated,
+            vec![1.0; ds.train.views.len()],
+            ds.val
+                .as_ref()
+                .map_or(Vec::new(), |v| vec![1.0; v.views.len()]),
+        ),
+    };
+    let relinearise = |split: &mut Split, e: &[f64]| {
+        for (v, &e) in split.views.iter_mut().zip(e) {
+            if let Some(f) = &v.ldr {
+                v.image = f.linearise(&response, e);
+            }
+        }
+    };
+    relinearise(&mut ds.train, &train_e);
+    if let Some(v) = ds.val.as_mut() {
+        relinearise(v, &val_e);
+    }
+    Calibration {
+        clipped_share: ds
+            .train
+            .views
+            .iter()
+            .map(|v| v.ldr.as_ref().map_or(0.0, |f| f.clipped_share()))
+            .collect(),
+        response,
+        exposure_source: source,
+        train_exposures: train_e,
+        val_exposures: val_e,
+    }
+}

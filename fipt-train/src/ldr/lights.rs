@@ -1,0 +1,370 @@
+//! The HDR radiance of clipped emitters. An LDR photo records a lamp only as "at least the clip
+//! level", so the emitters extracted from it carry that lower bound. Their radiance is solved
+//! instead from the unclipped pixels they light (IRIS optimises it against the photos, §2 of
+//! `iris-reference.md`; this solves it in closed form).
+//!
+//! For a rough dielectric pixel p of part P, the photo is I(p) ≈ k_P · (Σ_k Le_k·D_k(p) +
+//! E(p)): D_k is the irradiance/π that emitter group k sends to p at unit radiance (Monte Carlo,
+//! with visibility), E the diffuse shading from everything but the clipped groups (L′ over
+//! cosine-sampled directions that do not end on a clipped lamp), and k_P the part's
+//! diffuse albedo, one per part. Within a part the share of direct light varies from pixel to
+//! pixel, which separates k_P from Le_k; the light that walls reflect onto each other (E,
+//! recorded unclipped) fixes the scale. The two are alternated as least squares per channel,
+//! with Le_k ≥ T_k (a clipped lamp emits at least its clip level).
+//!
+//! Owns: grouping emitters into lamps, the solve. Must not touch: the extraction rule, the fit.
+
+use crate::pipeline::pixels::PixelStore;
+use fipt_bake::emitters::Emitter;
+use fipt_bake::lightfield::LightField;
+use fipt_bake::{Accel, ViewHits};
+use fipt_core::model::Trainer;
+use fipt_core::rng::Rng;
+use fipt_core::scene::{Mesh, Split};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// What the solve did, per lamp (a group of edge- or vertex-connected emitter triangles).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LampReport {
+    /// The lamp's triangles.
+    pub triangles: Vec<u32>,
+    /// Whether its radiance was solved (its pixels are mostly clipped).
+    pub solved_clipped: bool,
+    /// Photo pixels of the lamp, and the share of them with a clipped channel.
+    pub pixels: usize,
+    pub clipped_share: f64,
+    /// The extracted (clipped) radiance, area-weighted, and the solved one.
+    pub extracted: [f32; 3],
+    pub solved: [f32; 3],
+}
+
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct LightSolve {
+    pub lamps: Vec<LampReport>,
+    /// Pixels the solve used, and parts they fell in.
+    pub pixels: usize,
+    pub parts: usize,
+}
+
+/// Settings of the solve.
+#[derive(Clone, Copy, Debug)]
+pub struct SolveConfig {
+    pub pixels: usize,
+    pub light_samples: usize,
+    pub seed: u64,
+}
+
+/// Groups emitters into lamps: triangles that share a vertex position.
+fn lamps(mesh: &Mesh, emitters: &[Emitter]) -> Vec<Vec<usize>> {
+    let key = |v: Vec3| (v * 1e4).round().as_ivec3();
+    let mut parent: Vec<usize> = (0..emitters.len()).collect();
+    fn find(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut at: HashMap<glam::IVec3, usize> = HashMap::new();
+    for (i, e) in emitters.iter().enumerate() {
+        for v in mesh.corners(e.triangle as usize) {
+            match at.get(&key(v)) {
+                Some(&j) => {
+                    let (a, b) = (find(&mut parent, i), find(&mut parent, j));
+                    parent[a] = b;
+                }
+                None => {
+                    at.insert(key(v), i);
+                }
+            }
+        }
+    }
+    let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
+    for i in 0..emitters.len() {
+        let r = find(&mut parent, i);
+        groups.entry(r).or_default().push(i);
+    }
+    let mut g: Vec<Vec<usize>> = groups.into_values().collect();
+    g.sort();
+    g
+}
+
+/// Solves the radiance of the clipped lamps among `emitters` and sets it; returns the report.
+/// `store` holds the round-0 pixels with the baked shadings, `tr` the round-0 fit (which
+/// pixels are rough dielectrics).
+#[allow(clippy::too_many_arguments)]
+pub fn solve_clipped(
+    mesh: &Mesh,
+    accel: &Accel,
+    light_field: &LightField,
+    train: &Split,
+    hits: &[ViewHits],
+    store: &PixelStore,
+    tr: &Trainer,
+    emitters: &mut [Emitter],
+    cfg: SolveConfig,
+) -> LightSolve {
+    let groups = lamps(mesh, emitters);
+    let mut lamp_of_tri: HashMap<u32, usize> = HashMap::new();
+    for (g, members) in groups.iter().enumerate() {
+        for &i in members {
+            lamp_of_tri.insert(emitters[i].triangle, g);
+        }
+    }
+    // Each lamp's photo pixels: count, clipped count, mean linear value.
+    let mut seen = vec![(0usize, 0usize, [0.0f64; 3]); groups.len()];
+    for (v, h) in train.views.iter().zip(hits) {
+        let Some(f) = &v.ldr else { continue };
+        for p in 0..h.num_pixels() {
+            if let Some(&g) = lamp_of_tri
+                .get(&(h.tri[p].max(0) as u32))
+                .filter(|_| h.tri[p] >= 0)
+            {
+                seen[g].0 += 1;
+                seen[g].1 += f.pixel_clipped(p) as usize;
+                for c in 0..3 {
+                    seen[g].2[c] += v.image.data[3 * p + c] as f64;
+                }
+            }
+        }
+    }
+    let area_mean = |g: &[usize]| {
+        let a: f32 = g.iter().map(|&i| emitters[i].area).sum();
+        let mut m = [0.0f32; 3];
+        for &i in g {
+            for (c, mc) in m.iter_mut().enumerate() {
+                *mc += emitters[i].radiance[c] * emitters[i].area / a.max(1e-12);
+            }
+        }
+        m
+    };
+    let clipped: Vec<usize> = (0..groups.len())
+        .filter(|&g| seen[g].0 > 0 && seen[g].1 * 2 >= seen[g].0)
+        .collect();
+    let mut report = LightSolve {
+        lamps: groups
+            .iter()
+            .enumerate()
+            .map(|(g, m)| LampReport {
+                triangles: m.iter().map(|&i| emitters[i].triangle).collect(),
+                solved_clipped: false,
+                pixels: seen[g].0,
+                clipped_share: seen[g].1 as f64 / seen[g].0.max(1) as f64,
+                extracted: area_mean(m),
+                solved: area_mean(m),
+            })
+            .collect(),
+        ..Default::default()
+    };
+    if clipped.is_empty() {
+        return report;
+    }
+    // T_k: the clip level the lamp's pixels read (what L′ holds there).
+    let level: Vec<[f64; 3]> = clipped
+        .iter()
+        .map(|&g| seen[g].2.map(|s| s / seen[g].0 as f64))
+        .collect();
+
+    // The pixels of the solve: unclipped, not on an emitter, fitted rough dielectric.
+    let mat = tr.model.material(&store.pixels.x_unit);
+    let cand: Vec<usize> = (0..store.len())
+        .filter(|&i| {
+            let (k, p) = store.origin[i];
+            let v = &train.views[k as usize];
+            let tri = hits[k as usize].tri[p as usize];
+            mat.sigma[i] >= 0.6
+                && mat.metallic[i] <= 0.2
+                && !lamp_of_tri.contains_key(&(tri as u32))
+                && v.ldr.as_ref().is_some_and(|f| !f.pixel_clipped(p as usize))
+        })
+        .collect();
+    let stride = (cand.len() / cfg.pixels.max(1)).max(1);
+    let chosen: Vec<usize> = cand.iter().step_by(stride).copied().collect();
+    // Parts: the segment ids, else triangles.
+    let part_key = |i: usize| {
+        if store.pixels.seg.iter().any(|&s| s != store.pixels.seg[0]) {
+            store.pixels.seg[i] as i64
+        } else {
+            let (k, p) = store.origin[i];
+            (1 << 40) + hits[k as usize].tri[p as usize] as i64
+        }
+    };
+    let mut part_ids: HashMap<i64, usize> = HashMap::new();
+    let part: Vec<usize> = chosen
+        .iter()
+        .map(|&i| {
+            let n = part_ids.len();
+            *part_ids.entry(part_key(i)).or_insert(n)
+        })
+        .collect();
+    let n_parts = part_ids.len();
+
+    // D_k(p): unit-radiance irradiance/π from lamp k, by area sampling with visibility.
+    let lamp_tris: Vec<Vec<u32>> = clipped
+        .iter()
+        .map(|&g| groups[g].iter().map(|&i| emitters[i].triangle).collect())
+        .collect();
+    let lamp_cdf: Vec<(Vec<f32>, f32)> = lamp_tris
+        .iter()
+        .map(|ts| {
+            let mut acc = 0.0;
+            let cdf = ts
+                .iter()
+                .map(|&t| {
+                    acc += mesh.area(t as usize);
+                    acc
+                })
+                .collect();
+            (cdf, acc)
+        })
+        .collect();
+    use rayon::prelude::*;
+    let clipped_tri: std::collections::HashSet<u32> = lamp_tris.iter().flatten().copied().collect();
+    let per_pixel: Vec<(Vec<f32>, [f64; 3])> = chosen
+        .par_iter()
+        .enumerate()
+        .map(|(j, &i)| {
+            let (k, p) = store.origin[i];
+            let h = &hits[k as usize];
+            let x = h.position[p as usize];
+            let n = h.normal[p as usize];
+            let mut rng = Rng::new(cfg.seed, j as u64);
+            // E: cosine-weighted directions, L′ where they end on anything but a clipped lamp.
+            let frame = fipt_core::brdf::Frame::new(n);
+            let mut e = [0.0f64; 3];
+            let ne = 2 * cfg.light_samples;
+            for _ in 0..ne {
+                let w = frame.to_world(fipt_core::brdf::sample_cosine(
+                    rng.next_f32(),
+                    rng.next_f32(),
+                ));
+                let o = x + n * 1e-4;
+                if let Some(hit) = accel.closest(o, w, 0.0, f32::INFINITY)
+                    && !clipped_tri.contains(&hit.tri)
+                {
+                    let y = o + w * hit.t;
+                    let l = light_field.query(y, accel.facing_normal(hit.tri, w));
+                    for c in 0..3 {
+                        e[c] += l[c] as f64 / ne as f64;
+                    }
+                }
+            }
+            let d = lamp_tris
+                .iter()
+                .zip(&lamp_cdf)
+                .map(|(ts, (cdf, total))| {
+                    let mut sum = 0.0f32;
+                    for _ in 0..cfg.light_samples {
+                        let u = rng.next_f32() * total;
+                        let t = ts[cdf.partition_point(|&c| c < u).min(ts.len() - 1)] as usize;
+                        let (mut a, mut b) = (rng.next_f32(), rng.next_f32());
+                        if a + b > 1.0 {
+                            (a, b) = (1.0 - a, 1.0 - b);
+                        }
+                        let y = mesh.point_at(t, a, b);
+                        let d = y - x;
+                        let r2 = d.length_squared();
+                        if r2 < 1e-10 {
+                            continue;
+                        }
+                        let w = d / r2.sqrt();
+                        let cos_x = n.dot(w);
+                        let cos_l = mesh.normal(t).dot(-w).abs();
+                        if cos_x <= 0.0 {
+                            continue;
+                        }
+                        let eps = 1e-4 * r2.sqrt().max(1.0);
+                        if accel.occluded(x + n * eps, w, 0.0, r2.sqrt() * (1.0 - 1e-3)) {
+                            continue;
+                        }
+                        sum += cos_x * cos_l / r2;
+                    }
+                    sum * total / (std::f32::consts::PI * cfg.light_samples as f32)
+                })
+                .collect();
+            (d, e)
+        })
+        .collect();
+    let direct: Vec<Vec<f32>> = per_pixel.iter().map(|(d, _)| d.clone()).collect();
+
+    let nk = clipped.len();
+    let mut le: Vec<[f64; 3]> = level.clone();
+    for c in 0..3 {
+        let obs: Vec<f64> = chosen
+            .iter()
+            .map(|&i| store.pixels.gt[3 * i + c] as f64)
+            .collect();
+        let rest: Vec<f64> = per_pixel.iter().map(|(_, e)| e[c]).collect();
+        let mut kd = vec![0.5f64; n_parts];
+        let shading = |j: usize, le: &[[f64; 3]]| {
+            rest[j] + (0..nk).map(|k| le[k][c] * direct[j][k] as f64).sum::<f64>()
+        };
+        // Relative residuals, with Cauchy weights (scale 10 %) against outliers: highlights,
+        // textures within a part.
+        let mut w = vec![0.0f64; obs.len()];
+        for it in 0..200 {
+            for j in 0..obs.len() {
+                let o = obs[j].max(1e-3);
+                let rel = if it == 0 {
+                    0.0
+                } else {
+                    (obs[j] - kd[part[j]] * shading(j, &le)) / o
+                };
+                w[j] = 1.0 / (o * o * (1.0 + (rel / 0.1).powi(2)));
+            }
+            // k_P for the current radiance.
+            let (mut num, mut den) = (vec![0.0; n_parts], vec![0.0; n_parts]);
+            for j in 0..obs.len() {
+                let s = shading(j, &le);
+                num[part[j]] += w[j] * obs[j] * s;
+                den[part[j]] += w[j] * s * s;
+            }
+            for q in 0..n_parts {
+                kd[q] = if den[q] > 0.0 {
+                    (num[q] / den[q]).clamp(1e-3, 1.0)
+                } else {
+                    kd[q]
+                };
+            }
+            // Le for the current albedos: normal equations, projected onto Le ≥ T.
+            let mut a = vec![vec![0.0f64; nk]; nk];
+            let mut b = vec![0.0f64; nk];
+            for (j, d) in direct.iter().enumerate() {
+                let kq = kd[part[j]];
+                let r = obs[j] - kq * rest[j];
+                for k in 0..nk {
+                    let dk = kq * d[k] as f64;
+                    b[k] += w[j] * dk * r;
+                    for l in 0..nk {
+                        a[k][l] += w[j] * dk * kq * d[l] as f64;
+                    }
+                }
+            }
+            for _ in 0..20 {
+                for k in 0..nk {
+                    if a[k][k] <= 0.0 {
+                        continue;
+                    }
+                    let off: f64 = (0..nk)
+                        .filter(|&l| l != k)
+                        .map(|l| a[k][l] * le[l][c])
+                        .sum();
+                    le[k][c] = ((b[k] - off) / a[k][k]).max(level[k][c]);
+                }
+            }
+        }
+    }
+    for (k, &g) in clipped.iter().enumerate() {
+        let solved = le[k].map(|x| x as f32);
+        for &i in &groups[g] {
+            emitters[i].radiance = solved;
+        }
+        report.lamps[g].solved = solved;
+        report.lamps[g].solved_clipped = true;
+    }
+    report.pixels = chosen.len();
+    report.parts = n_parts;
+    report
+}

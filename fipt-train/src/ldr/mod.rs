@@ -1,0 +1,20 @@
+//! LDR photos (8-bit PNG or JPEG through an unknown camera response, lamps clipped), after
+//! IRIS (`iris-reference.md`):
+//!
+//! - `twin`: the `ldr` command, which makes the LDR twin of an HDR scene;
+//! - `calibrate`: the response and the per-frame exposures, and the photos linearised with
+//!   them before the bake;
+//! - `lights`: the HDR radiance of clipped emitters, solved from the unclipped pixels they
+//!   light;
+//! - `report`: the run's LDR figures (view synthesis scored in LDR).
+//!
+//! Owns: what LDR input changes in a run. Must not touch: the fit's losses (fipt-core), the
+//! tracing (fipt-bake).
+
+pub mod calibrate;
+pub mod lights;
+pub mod report;
+pub mod twin;
+
+pub use calibrate::{Calibration, calibrate};
+pub use twin::{TwinJob, TwinTruth, make_twin};

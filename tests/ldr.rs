@@ -1,0 +1,271 @@
+//! LDR photos: the `ldr` twin command, loading PNG and JPEG frames, the exposures fipt
+//! estimates or reads, and the errors of bad LDR input.
+
+use fipt_core::scene::ldr::{Response, read_ldr};
+use fipt_core::scene::{Camera, Dataset, Image, LoadOptions, procedural};
+use glam::{DVec3, Vec3};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+mod common;
+
+const W: usize = 24;
+const H: usize = 18;
+
+fn fipt(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_fipt-train"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// An HDR FIPT-synthetic scene: a procedural room, 3 views of a smooth radiance ramp with a
+/// bright patch (a lamp) in each.
+fn hdr_scene(name: &str) -> PathBuf {
+    let d = common::tmp_dir(&format!("ldr-{name}"));
+    let room = procedural::room(Vec3::new(5.0, 2.7, 4.0), 1);
+    room.mesh
+        .save_obj(&d.join("scene.obj"), "test room")
+        .unwrap();
+    let cams: Vec<Camera> = [(1.0, 1.2, 1.0), (4.0, 1.5, 3.0), (2.5, 2.0, 3.5)]
+        .iter()
+        .map(|&(x, y, z)| {
+            Camera::look_at_fov(
+                DVec3::new(x, y, z),
+                DVec3::new(2.5, 1.0, 2.0),
+                DVec3::Y,
+                1.2,
+                W,
+                H,
+            )
+        })
+        .collect();
+    let frames: Vec<serde_json::Value> = cams
+        .iter()
+        .enumerate()
+        .map(|(k, c)| serde_json::json!({"file_path": format!("Image/{k:03}_0001"), "transform_matrix": c.to_fipt_c2w()}))
+        .collect();
+    std::fs::create_dir_all(d.join("train/Image")).unwrap();
+    std::fs::write(
+        d.join("train/transforms.json"),
+        serde_json::json!({"camera_angle_x": 1.2, "frames": frames}).to_string(),
+    )
+    .unwrap();
+    for k in 0..cams.len() {
+        let mut img = Image::new(W, H, 3);
+        for p in 0..W * H {
+            let (x, y) = ((p % W) as f32 / W as f32, (p / W) as f32 / H as f32);
+            let lamp = x > 0.4 && x < 0.6 && y < 0.2;
+            let v = if lamp {
+                20.0
+            } else {
+                0.05 + 0.9 * x * (1.0 - 0.5 * y)
+            };
+            img.data[3 * p..3 * p + 3].copy_from_slice(&[v, 0.8 * v, 0.6 * v]);
+        }
+        img.write_exr(&d.join(format!("train/Image/{k:03}_0001.exr")))
+            .unwrap();
+    }
+    d
+}
+
+fn twin(scene: &Path, out: &Path, extra: &[&str]) {
+    let mut args = vec![
+        "ldr",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = fipt(&args);
+    assert!(
+        o.status.success(),
+        "ldr failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn assert_check_fails(scene: &Path, needles: &[&str]) {
+    let o = fipt(&["check", "--scene", scene.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks '{n}': {err}");
+    }
+}
+
+#[test]
+fn twin_photos_follow_the_image_formation_and_load_back() {
+    let hdr = hdr_scene("formation");
+    let out = hdr.with_extension("png-twin");
+    twin(
+        &hdr,
+        &out,
+        &["--response", "gamma:2.2", "--exposure", "1.5"],
+    );
+    let src = Dataset::load(&hdr, &LoadOptions::default()).unwrap();
+    let ds = Dataset::load(&out, &LoadOptions::default()).unwrap();
+    assert!(ds.is_ldr() && !src.is_ldr());
+    let r = Response::gamma([2.2; 3]);
+    let mut clipped = 0;
+    for (a, b) in src.train.views.iter().zip(&ds.train.views) {
+        let f = b.ldr.as_ref().unwrap();
+        for (i, &x) in a.image.data.iter().enumerate() {
+            let want = (255.0 * (1.5 * x as f64).min(1.0).powf(1.0 / 2.2)).round() as u8;
+            assert_eq!(f.codes[i], want, "code {i}");
+            clipped += (want == 255) as usize;
+            assert_eq!(f.clipped(i / 3, i % 3), want == 255, "clip flag {i}");
+        }
+        // Linearised with the true curve and exposure, unclipped values come back to within
+        // the 8-bit step.
+        let lin = f.linearise(&r, 1.5);
+        for (i, (&x, &y)) in a.image.data.iter().zip(&lin.data).enumerate() {
+            if 1.5 * x < 0.99 {
+                let step = (1.0 / 255.0) * 2.2 * (1.5 * x).powf(1.0 - 1.0 / 2.2) / 1.5 + 1e-3;
+                assert!((x - y).abs() <= step, "value {i}: {x} against {y}");
+            }
+        }
+    }
+    assert!(clipped > 0);
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("ldr.json")).unwrap()).unwrap();
+    assert_eq!(truth["exposure"], 1.5);
+    // The source scene is untouched by the twin's links.
+    assert!(hdr.join("train/Image/000_0001.exr").is_file());
+    let _ = std::fs::remove_dir_all(&hdr);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn given_exposures_are_read_and_the_default_exposure_clips_the_lamp() {
+    let hdr = hdr_scene("given");
+    let out = hdr.with_extension("given-twin");
+    twin(
+        &hdr,
+        &out,
+        &["--stops", "1", "--give-exposure", "--seed", "3"],
+    );
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("ldr.json")).unwrap()).unwrap();
+    let ds = Dataset::load(&out, &LoadOptions::default()).unwrap();
+    let base = truth["exposure"].as_f64().unwrap();
+    // Every lamp pixel (20 in the HDR photo) is clipped: the base exposure clips them.
+    assert!(base * 20.0 >= 1.0, "base exposure {base}");
+    for (k, v) in ds.train.views.iter().enumerate() {
+        let e = truth["splits"][0]["exposures"][k].as_f64().unwrap();
+        let given = v.ldr.as_ref().unwrap().exposure.unwrap();
+        assert!(
+            (given - e / base).abs() < 1e-9,
+            "frame {k}: {given} against {}",
+            e / base
+        );
+        assert!((0.5..=2.0).contains(&given));
+        assert_eq!(
+            truth["splits"][0]["emitter_clipped"][k],
+            serde_json::Value::Null
+        );
+    }
+    let _ = std::fs::remove_dir_all(&hdr);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn bad_ldr_input_names_the_file() {
+    let hdr = hdr_scene("bad");
+    // Truncated JPEG.
+    let jpg = hdr.with_extension("jpg-twin");
+    twin(&hdr, &jpg, &["--format", "jpeg"]);
+    let f = jpg.join("train/Image/001_0001.jpg");
+    let bytes = std::fs::read(&f).unwrap();
+    std::fs::write(&f, &bytes[..bytes.len() / 2]).unwrap();
+    assert_check_fails(&jpg, &["001_0001.jpg", "truncated JPEG"]);
+    let _ = std::fs::remove_dir_all(&jpg);
+
+    let png = hdr.with_extension("png-twin");
+    let fresh = || {
+        let _ = std::fs::remove_dir_all(&png);
+        twin(&hdr, &png, &[]);
+        Dataset::load(&png, &LoadOptions::default()).unwrap();
+    };
+    // 16-bit PNG.
+    fresh();
+    let f = png.join("train/Image/002_0001.png");
+    let img = image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_pixel(
+        W as u32,
+        H as u32,
+        image::Rgb([3000, 3000, 3000]),
+    );
+    image::DynamicImage::ImageRgb16(img).save(&f).unwrap();
+    assert_check_fails(&png, &["002_0001.png", "Rgb16", "8-bit"]);
+    // All white.
+    fresh();
+    let f = png.join("train/Image/000_0001.png");
+    image::RgbImage::from_pixel(W as u32, H as u32, image::Rgb([255, 255, 255]))
+        .save(&f)
+        .unwrap();
+    assert_check_fails(&png, &["000_0001.png", "over-exposed"]);
+    // Mixed HDR and LDR frames.
+    fresh();
+    std::fs::remove_file(png.join("train/Image/001_0001.png")).unwrap();
+    std::fs::copy(
+        hdr.join("train/Image/001_0001.exr"),
+        png.join("train/Image/001_0001.exr"),
+    )
+    .unwrap();
+    assert_check_fails(&png, &["mixed HDR and LDR photos", "001_0001.exr"]);
+    // Not an image at all.
+    fresh();
+    std::fs::write(png.join("train/Image/000_0001.png"), b"not a png").unwrap();
+    assert_check_fails(&png, &["000_0001.png", "not a PNG or JPEG"]);
+    let _ = std::fs::remove_dir_all(&png);
+    let _ = std::fs::remove_dir_all(&hdr);
+    // The reader alone, on a file that does not exist.
+    let e = read_ldr(Path::new("/nonexistent/x.png")).unwrap_err();
+    assert!(e.to_string().contains("x.png"));
+}
+
+/// Exposures not given, ±1 stop per view: fipt's estimates match the twin's within 5 %, up to
+/// the stated convention (the median train frame's exposure is 1); taking every frame as 1
+/// would be off by up to a factor of 2.
+#[test]
+fn exposures_are_estimated_from_the_overlap_of_the_views() {
+    let out = common::tmp_dir("ldr-exposure");
+    let _ = std::fs::remove_dir_all(&out);
+    twin(&common::scene_dir(), &out, &["--stops", "1", "--seed", "7"]);
+    let truth = fipt_train::ldr::TwinTruth::load(&out.join("ldr.json")).unwrap();
+    let mut ds = Dataset::load(&out, &LoadOptions::default()).unwrap();
+    let accel = fipt_bake::Accel::build(&ds.mesh);
+    let cal = fipt_train::ldr::calibrate(&mut ds, &accel, true);
+    let t = &truth.splits[0].exposures;
+    let mut sorted = t.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[t.len() / 2];
+    let (mut worst, mut trivial) = (0.0f64, 0.0f64);
+    for (k, (&e, &want)) in cal.train_exposures.iter().zip(t).enumerate() {
+        let want = want / median;
+        let err = (e / want - 1.0).abs();
+        assert!(err < 0.05, "train frame {k}: {e:.4} against {want:.4}");
+        worst = worst.max(err);
+        trivial = trivial.max((1.0 / want - 1.0).abs());
+    }
+    assert!(trivial > 0.3, "the twin's exposures hardly vary: {trivial}");
+    // The val frames against the train frames' radiance.
+    for (k, (&e, &want)) in cal
+        .val_exposures
+        .iter()
+        .zip(&truth.splits[1].exposures)
+        .enumerate()
+    {
+        let want = want / median;
+        assert!(
+            (e / want - 1.0).abs() < 0.05,
+            "val frame {k}: {e:.4} against {want:.4}"
+        );
+    }
+    // Linearised with them, an unclipped train pixel reads the HDR photo's radiance times
+    // base exposure / median.
+    eprintln!("worst exposure error {worst:.4}, trivial {trivial:.4}");
+    let _ = std::fs::remove_dir_all(&out);
+}
