@@ -92,14 +92,15 @@ fn lamps(mesh: &Mesh, emitters: &[Emitter]) -> Vec<Vec<usize>> {
 }
 
 /// Solves the radiance of the clipped lamps among `emitters` and sets it; returns the report.
-/// `store` holds the round-0 pixels with the baked shadings, `tr` the round-0 fit (which
-/// pixels are rough dielectrics).
+/// `store` holds the pixels with the baked shadings, `tr` a fit on them (which pixels are rough
+/// dielectrics), `exposures` the train frames' (a clipped channel's lower bound is 1/e).
 #[allow(clippy::too_many_arguments)]
 pub fn solve_clipped(
     mesh: &Mesh,
     accel: &Accel,
     light_field: &LightField,
     train: &Split,
+    exposures: &[f64],
     hits: &[ViewHits],
     store: &PixelStore,
     tr: &Trainer,
@@ -115,7 +116,7 @@ pub fn solve_clipped(
     }
     // Each lamp's photo pixels: count, clipped count, mean linear value.
     let mut seen = vec![(0usize, 0usize, [0.0f64; 3]); groups.len()];
-    for (v, h) in train.views.iter().zip(hits) {
+    for ((v, h), &e) in train.views.iter().zip(hits).zip(exposures) {
         let Some(f) = &v.ldr else { continue };
         for p in 0..h.num_pixels() {
             if let Some(&g) = lamp_of_tri
@@ -125,7 +126,12 @@ pub fn solve_clipped(
                 seen[g].0 += 1;
                 seen[g].1 += f.pixel_clipped(p) as usize;
                 for c in 0..3 {
-                    seen[g].2[c] += v.image.data[3 * p + c] as f64;
+                    // A clipped channel's clip level (its value before a fill).
+                    seen[g].2[c] += if f.clipped(p, c) {
+                        1.0 / e
+                    } else {
+                        v.image.data[3 * p + c] as f64
+                    };
                 }
             }
         }

@@ -15,7 +15,10 @@ use std::path::Path;
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct LdrReport {
     pub calibration: Calibration,
+    /// The clipped lamps solved before the bake (`pipeline::lamps`), and again after round 0
+    /// (the radiance the run keeps).
     pub light_solve: Option<LightSolve>,
+    pub light_resolve: Option<LightSolve>,
     /// Mean over the val views of the LDR PSNR, and per view.
     pub view_psnr_ldr: Option<f64>,
     pub view_psnr_ldr_per_view: Vec<f64>,

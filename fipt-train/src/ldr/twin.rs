@@ -10,7 +10,7 @@
 use anyhow::{Context, Result, bail};
 use fipt_core::scene::dataset::Layout;
 use fipt_core::scene::ldr::Response;
-use fipt_core::scene::{Dataset, LoadOptions, MapKind};
+use fipt_core::scene::{Dataset, LoadOptions, MapKind, Split};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -85,8 +85,9 @@ pub struct TwinJob {
     pub scene: PathBuf,
     pub out: PathBuf,
     pub response: CurveSpec,
-    /// The base exposure; `None`: chosen so that at least `clip_share` of the train pixels and
-    /// every pixel of a true emitter (where `Emit` maps exist) are clipped.
+    /// The base exposure; `None`: chosen so that at least `clip_share` of the train pixels and,
+    /// in every view at its own exposure, every pixel of a true emitter (where `Emit` maps
+    /// exist) are clipped.
     pub exposure: Option<f64>,
     pub clip_share: f64,
     /// Per-view exposures 2^u·e, u uniform in [−stops, stops].
@@ -133,27 +134,34 @@ impl TwinTruth {
     }
 }
 
-/// The base exposure that clips `share` of the train pixels (their brightest channel) and every
-/// pixel of a true emitter.
-fn auto_exposure(ds: &Dataset, share: f64) -> f64 {
+/// The base exposure e that clips `share` of the train pixels (their brightest channel) and,
+/// in every view (at its exposure e·2^u, `stops[split][view]`), every pixel of a true emitter.
+fn auto_exposure(splits: &[&Split], stops: &[Vec<f64>], share: f64) -> f64 {
     let mut peak: Vec<f32> = Vec::new();
-    let mut emit_min = f32::INFINITY;
-    for v in &ds.train.views {
-        let e = v.map(MapKind::Emit);
-        for p in 0..v.image.num_pixels() {
-            let m = v.image.rgb(p).into_iter().fold(0.0f32, f32::max);
-            peak.push(m);
-            if let Some(e) = e
-                && e.rgb(p).iter().any(|&x| x > 0.0)
-            {
-                emit_min = emit_min.min(m);
+    let mut need = 0.0f64;
+    for (s, (split, us)) in splits.iter().zip(stops).enumerate() {
+        for (v, u) in split.views.iter().zip(us) {
+            let e = v.map(MapKind::Emit);
+            let mut emit_min = f32::INFINITY;
+            for p in 0..v.image.num_pixels() {
+                let m = v.image.rgb(p).into_iter().fold(0.0f32, f32::max);
+                if s == 0 {
+                    peak.push(m);
+                }
+                if let Some(e) = e
+                    && e.rgb(p).iter().any(|&x| x > 0.0)
+                {
+                    emit_min = emit_min.min(m);
+                }
+            }
+            if emit_min.is_finite() {
+                need = need.max(1.0 / (emit_min.max(1e-6) as f64 * 2f64.powf(*u)));
             }
         }
     }
     let k = ((1.0 - share) * (peak.len().saturating_sub(1)) as f64) as usize;
     let (_, q, _) = peak.select_nth_unstable_by(k, f32::total_cmp);
-    let level = q.min(emit_min).max(1e-6);
-    1.0 / level as f64
+    need.max(1.0 / q.max(1e-6) as f64)
 }
 
 /// Encodes one HDR image as 8-bit codes.
@@ -223,10 +231,6 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
         bail!("--stops {}: expected 0 to 3", job.stops);
     }
     let response = job.response.response();
-    let base = match job.exposure {
-        Some(e) => e,
-        None => auto_exposure(&ds, job.clip_share),
-    };
     let ext = match job.format {
         LdrFormat::Png => "png",
         LdrFormat::Jpeg => "jpg",
@@ -244,7 +248,21 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
             job.scene.display()
         ),
     };
+    // Each view's stops u, drawn before the base exposure that depends on them.
     let mut rng = fipt_core::rng::Rng::new(job.seed, 0x1d2_7a1a);
+    let stops: Vec<Vec<f64>> = photo_dirs
+        .iter()
+        .map(|(split, _)| {
+            (0..split.views.len())
+                .map(|_| (2.0 * rng.next_f32() as f64 - 1.0) * job.stops)
+                .collect()
+        })
+        .collect();
+    let splits: Vec<&Split> = photo_dirs.iter().map(|(s, _)| *s).collect();
+    let base = match job.exposure {
+        Some(e) => e,
+        None => auto_exposure(&splits, &stops, job.clip_share),
+    };
     let truth = crate::output::staged_dir(&job.out, |tmp| {
         let skip = |p: &Path| {
             let rel = p.strip_prefix(&job.scene).unwrap_or(p);
@@ -256,17 +274,12 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
         };
         link_tree(&job.scene, tmp, &skip)?;
         let mut splits = Vec::new();
-        for (split, dir) in &photo_dirs {
+        for ((split, dir), us) in photo_dirs.iter().zip(&stops) {
             let mut exposures = Vec::new();
             let mut clipped_share = Vec::new();
             let mut emitter_clipped = Vec::new();
-            for v in &split.views {
-                let u = if job.stops > 0.0 {
-                    (2.0 * rng.next_f32() as f64 - 1.0) * job.stops
-                } else {
-                    0.0
-                };
-                let e = base * 2f64.powf(u);
+            for (v, u) in split.views.iter().zip(us) {
+                let e = base * 2f64.powf(*u);
                 let codes = encode(&v.image, &job.response, e);
                 let path = tmp.join(dir).join(format!("{:03}_0001.{ext}", v.index));
                 write_photo(&path, split.width, split.height, &codes, job)?;

@@ -287,6 +287,14 @@ pub fn run_report(
             crate::ldr::report::LdrReport {
                 calibration: cal.clone(),
                 light_solve: ctx.light_solve.clone(),
+                light_resolve: std::fs::read_to_string(
+                    ctx.out
+                        .join("checkpoint")
+                        .join("round0")
+                        .join(super::rounds::LIGHT_SOLVE),
+                )
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok()),
                 view_psnr_ldr: crate::rerender::mean(&per_view),
                 view_psnr_ldr_per_view: per_view,
                 relight_scale: relit.map(|r| r.0),

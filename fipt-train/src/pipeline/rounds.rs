@@ -24,6 +24,8 @@ use std::time::Instant;
 const ROUND_REPORT: &str = "report.json";
 /// Round 0's emitters in its checkpoint folder.
 const ROUND_EMITTERS: &str = "emitters.json";
+/// LDR photos: round 0's solve of the clipped lamps.
+pub const LIGHT_SOLVE: &str = "light_solve.json";
 
 /// What every round's fit shares: the segmentation loss, the scene box, the device and the
 /// hash grid's levels (from the pixel footprint).
@@ -336,7 +338,7 @@ impl Rounds {
         if self.emitters.is_some() {
             return Ok(());
         }
-        let e = extract::extract_emitters(
+        let mut e = extract::extract_emitters(
             &ctx.ds.mesh,
             &ctx.ds.train,
             baked,
@@ -345,6 +347,10 @@ impl Rounds {
             &ctx.cfg.emitters,
             ctx.seeds.base(),
         );
+        if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
+            let solve = super::lamps::resolve(ctx, baked, store, tr, &mut e);
+            self.ck.put(0, LIGHT_SOLVE, &solve)?;
+        }
         self.ck.put(0, ROUND_EMITTERS, &e)?;
         self.emitters = Some(e);
         ctx.times.emitters_s = ctx.lap();
