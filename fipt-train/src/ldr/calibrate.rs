@@ -2,7 +2,7 @@
 //! them (L = g(I)/e) before anything reads them.
 //!
 //! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in unless a camera
-//!   says otherwise. It is not estimated yet (see `docs/ldr.md`).
+//!   says otherwise. It is not estimated (`docs/ldr.md` says why not yet).
 //! - **Exposure**: a frame's `exposure` where the capture gives it; else estimated. Every
 //!   surface point seen in several views has one radiance (up to its specular part), so the
 //!   log-ratio of a frame's linearised pixels to the cross-view radiance of the points they see
@@ -42,10 +42,11 @@ pub struct Calibration {
 /// Voxels per side of the grid that keys surface points.
 const GRID: f32 = 64.0;
 
-/// Per-(triangle, voxel) mean linear luminance of one view's unclipped pixels (with the
-/// response, exposure 1), and the pixel count.
-fn point_means(ds: &Dataset, accel: &Accel, split: &Split, r: &Response) -> Vec<HashMap<u64, f64>> {
-    let lut = r.lut();
+/// Per view, per surface point (triangle, voxel): the mean code value in [0, 1] of each
+/// channel over the view's unclipped pixels there.
+type PointCodes = Vec<HashMap<u64, [f64; 3]>>;
+
+fn point_codes(ds: &Dataset, accel: &Accel, split: &Split) -> PointCodes {
     let sb = fipt_core::scene::SceneBox::from_points(&ds.mesh.vertices);
     split
         .views
@@ -53,17 +54,10 @@ fn point_means(ds: &Dataset, accel: &Accel, split: &Split, r: &Response) -> Vec<
         .map(|v| {
             let f = v.ldr.as_ref().expect("LDR views");
             let hits = cast_view(accel, &ds.mesh, &v.camera);
-            let mut sum: HashMap<u64, (f64, u32)> = HashMap::new();
+            let mut sum: HashMap<u64, ([f64; 3], u32)> = HashMap::new();
             for p in 0..hits.num_pixels() {
                 let t = hits.tri[p];
                 if t < 0 || f.pixel_clipped(p) {
-                    continue;
-                }
-                let y: f64 = (0..3)
-                    .map(|c| lut[c][f.codes[3 * p + c] as usize] as f64)
-                    .sum::<f64>()
-                    / 3.0;
-                if y <= 1e-4 {
                     continue;
                 }
                 let q = (sb
@@ -74,11 +68,27 @@ fn point_means(ds: &Dataset, accel: &Accel, split: &Split, r: &Response) -> Vec<
                 let key =
                     ((t as u64) << 24) ^ ((q.x as u64) << 16) ^ ((q.y as u64) << 8) ^ q.z as u64;
                 let e = sum.entry(key).or_default();
-                e.0 += y;
+                for c in 0..3 {
+                    e.0[c] += f.codes[3 * p + c] as f64 / 255.0;
+                }
                 e.1 += 1;
             }
             sum.into_iter()
-                .map(|(k, (s, n))| (k, s / n as f64))
+                .map(|(k, (s, n))| (k, s.map(|x| x / n as f64)))
+                .collect()
+        })
+        .collect()
+}
+
+/// The mean linear luminance (response `r`, exposure 1) of every point of every view, where
+/// above 1e-4.
+fn point_means(codes: &PointCodes, r: &Response) -> Vec<HashMap<u64, f64>> {
+    codes
+        .iter()
+        .map(|m| {
+            m.iter()
+                .map(|(k, v)| (*k, (0..3).map(|c| r.inverse(c, v[c])).sum::<f64>() / 3.0))
+                .filter(|(_, y)| *y > 1e-4)
                 .collect()
         })
         .collect()
@@ -124,8 +134,12 @@ fn radiance_of(views: &[HashMap<u64, f64>], log_e: &[f64], min_views: usize) -> 
 
 /// The train frames' exposures estimated from their overlap (median 1), and the val frames'
 /// against the train frames' radiance.
-fn estimate_exposures(ds: &Dataset, accel: &Accel, r: &Response) -> (Vec<f64>, Vec<f64>) {
-    let train = point_means(ds, accel, &ds.train, r);
+fn estimate_exposures(
+    train: &PointCodes,
+    val: Option<&PointCodes>,
+    r: &Response,
+) -> (Vec<f64>, Vec<f64>) {
+    let train = point_means(train, r);
     let mut log_e = vec![0.0; train.len()];
     for _ in 0..8 {
         let rad = radiance_of(&train, &log_e, 2);
@@ -135,8 +149,8 @@ fn estimate_exposures(ds: &Dataset, accel: &Accel, r: &Response) -> (Vec<f64>, V
         log_e.iter_mut().for_each(|e| *e -= mid);
     }
     let rad = radiance_of(&train, &log_e, 2);
-    let val = match &ds.val {
-        Some(v) => exposures_against(&point_means(ds, accel, v, r), &rad),
+    let val = match val {
+        Some(v) => exposures_against(&point_means(v, r), &rad),
         None => Vec::new(),
     };
     (
@@ -169,22 +183,19 @@ pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration
                 .as_ref()
                 .map(|v| given(v, scale).unwrap_or_else(|| vec![1.0; v.views.len()]))
                 .unwrap_or_default();
-            (
-                ExposureSource::Given,
-                t.iter().map(|e| e * scale).collect(),
-                val,
-            )
+            let t: Vec<f64> = t.iter().map(|e| e * scale).collect();
+            (ExposureSource::Given, t, val)
         }
         None if estimate => {
-            let (t, v) = estimate_exposures(ds, accel, &response);
+            let train_codes = point_codes(ds, accel, &ds.train);
+            let val_codes = ds.val.as_ref().map(|v| point_codes(ds, accel, v));
+            let (t, v) = estimate_exposures(&train_codes, val_codes.as_ref(), &response);
             (ExposureSource::Estimated, t, v)
         }
         None => (
             ExposureSource::Estimated,
             vec![1.0; ds.train.views.len()],
-            ds.val
-                .as_ref()
-                .map_or(Vec::new(), |v| vec![1.0; v.views.len()]),
+            ds.val.as_ref().map_or(Vec::new(), |v| vec![1.0; v.views.len()]),
         ),
     };
     let relinearise = |split: &mut Split, e: &[f64]| {
