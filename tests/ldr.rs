@@ -376,4 +376,3 @@ fn fast_run_on_the_ldr_twin_recovers_lamps_and_materials() {
     assert!(view > 30.0, "LDR view synthesis {view:.2} dB");
     let _ = std::fs::remove_dir_all(&dir);
 }
-

@@ -96,6 +96,9 @@ pub fn write(scene: &Path, out: &Path) -> Result<PathBuf> {
             ))
         );
         metric_tables(&mut h, &run, &ds);
+        if let Some(l) = &run.ldr {
+            ldr_section(&mut h, l);
+        }
         times(&mut h, &run);
         views(&mut h, &ds, out, img_dir)?;
         parts(&mut h, run.parts.as_deref());
@@ -599,4 +602,87 @@ fn sheet(h: &mut String, out: &Path, img_dir: &Path) -> Result<()> {
     std::fs::copy(&src, &dst).with_context(|| format!("{}: cannot copy", src.display()))?;
     h.push_str("<h2>Re-renders</h2><p>Per val view: photo | view synthesis | relit photo | relit re-render.</p><div class=\"sheet\"><img src=\"report/val_sheet.png\" alt=\"val re-renders\"></div>");
     Ok(())
+}
+
+/// LDR photos: the response (a plot of f per channel), the exposures, the clipped lamps' solve
+/// and view synthesis in LDR.
+fn ldr_section(h: &mut String, l: &crate::ldr::report::LdrReport) {
+    let cal = &l.calibration;
+    let e = &cal.train_exposures;
+    let (lo, hi) = e
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    let clipped = cal.clipped_share.iter().sum::<f64>() / cal.clipped_share.len().max(1) as f64;
+    let _ = write!(
+        h,
+        "<h2>LDR photos</h2><p>8-bit photos, {:.2} % of the train pixels clipped on average. Exposures {} ({} train frames, {:.3}–{:.3}, the median frame's is 1: radiance is in units of its clip level). View synthesis in LDR (the re-render through the response at the view's exposure, against the photo): <b>{} dB</b>. Relighting after one global scale ({}): {} dB.</p>",
+        100.0 * clipped,
+        match cal.exposure_source {
+            crate::ldr::calibrate::ExposureSource::Given => "given",
+            crate::ldr::calibrate::ExposureSource::Estimated => "estimated",
+        },
+        e.len(),
+        lo,
+        hi,
+        num(l.view_psnr_ldr, 2),
+        num(l.relight_scale, 3),
+        num(l.relight_psnr_aligned, 2),
+    );
+    // The response f per channel: code value against linear value.
+    let (w, hh, pad) = (320.0f64, 240.0f64, 36.0f64);
+    let _ = write!(
+        h,
+        "<svg width=\"{w}\" height=\"{hh}\" xmlns=\"http://www.w3.org/2000/svg\"><rect x=\"{pad}\" y=\"{pad}\" width=\"{}\" height=\"{}\" fill=\"none\" stroke=\"#999\"/><text x=\"{}\" y=\"{}\" font-size=\"11\" text-anchor=\"middle\">linear value e·L (0–1)</text><text x=\"10\" y=\"{}\" font-size=\"11\">code</text>",
+        w - 2.0 * pad,
+        hh - 2.0 * pad,
+        w / 2.0,
+        hh - 8.0,
+        pad - 6.0
+    );
+    for (c, colour) in ["#d62728", "#2ca02c", "#1f77b4"].iter().enumerate() {
+        let pts: Vec<String> = (0..=100)
+            .map(|i| {
+                let x = i as f64 / 100.0;
+                let v = cal.response.forward(c, x);
+                format!(
+                    "{:.1},{:.1}",
+                    pad + (w - 2.0 * pad) * x,
+                    hh - pad - (hh - 2.0 * pad) * v
+                )
+            })
+            .collect();
+        let _ = write!(
+            h,
+            "<polyline fill=\"none\" stroke=\"{colour}\" stroke-width=\"1.2\" points=\"{}\"/>",
+            pts.join(" ")
+        );
+    }
+    h.push_str("</svg><p>The camera response f (R, G, B) the photos were linearised with.</p>");
+    for (title, solve) in [
+        ("before the bake", &l.light_solve),
+        ("after round 0 (kept)", &l.light_resolve),
+    ] {
+        let Some(solve) = solve else { continue };
+        let _ = write!(
+            h,
+            "<p>Clipped lamps, solved {title} from {} pixels of {} parts:</p><table><tr><th>triangles</th><th>pixels</th><th>clipped</th><th>extracted radiance</th><th>solved radiance</th></tr>",
+            solve.pixels, solve.parts
+        );
+        for lamp in &solve.lamps {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{:.0} %</td><td>{:.3?}</td><td>{}</td></tr>",
+                lamp.triangles.len(),
+                lamp.pixels,
+                100.0 * lamp.clipped_share,
+                lamp.extracted,
+                if lamp.solved_clipped {
+                    format!("{:.3?}", lamp.solved)
+                } else {
+                    "(not clipped: measured)".into()
+                }
+            );
+        }
+        h.push_str("</table>");
+    }
 }

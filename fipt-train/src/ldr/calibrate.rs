@@ -195,7 +195,9 @@ pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration
         None => (
             ExposureSource::Estimated,
             vec![1.0; ds.train.views.len()],
-            ds.val.as_ref().map_or(Vec::new(), |v| vec![1.0; v.views.len()]),
+            ds.val
+                .as_ref()
+                .map_or(Vec::new(), |v| vec![1.0; v.views.len()]),
         ),
     };
     let relinearise = |split: &mut Split, e: &[f64]| {
