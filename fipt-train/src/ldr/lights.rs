@@ -212,6 +212,49 @@ pub fn solve_clipped(
         .iter()
         .map(|&g| groups[g].iter().map(|&i| emitters[i].triangle).collect())
         .collect();
+    let per_pixel = light_terms(
+        mesh,
+        accel,
+        light_field,
+        hits,
+        store,
+        &chosen,
+        &lamp_tris,
+        cfg,
+    );
+
+    let obs: Vec<[f64; 3]> = chosen
+        .iter()
+        .map(|&i| [0, 1, 2].map(|c| store.pixels.gt[3 * i + c] as f64))
+        .collect();
+    let le = alternate(&obs, &per_pixel, &part, n_parts, &level);
+    for (k, &g) in clipped.iter().enumerate() {
+        let solved = le[k].map(|x| x as f32);
+        for &i in &groups[g] {
+            emitters[i].radiance = solved;
+        }
+        report.lamps[g].solved = solved;
+        report.lamps[g].solved_clipped = true;
+    }
+    report.pixels = chosen.len();
+    report.parts = n_parts;
+    report
+}
+
+/// Per chosen pixel: D_k for every lamp of `lamp_tris` (irradiance/π at unit radiance, area
+/// sampling with visibility) and E (L′ over cosine-sampled directions that do not end on one of
+/// those lamps), per channel.
+#[allow(clippy::too_many_arguments)]
+fn light_terms(
+    mesh: &Mesh,
+    accel: &Accel,
+    light_field: &LightField,
+    hits: &[ViewHits],
+    store: &PixelStore,
+    chosen: &[usize],
+    lamp_tris: &[Vec<u32>],
+    cfg: SolveConfig,
+) -> Vec<(Vec<f32>, [f64; 3])> {
     let lamp_cdf: Vec<(Vec<f32>, f32)> = lamp_tris
         .iter()
         .map(|ts| {
@@ -228,7 +271,7 @@ pub fn solve_clipped(
         .collect();
     use rayon::prelude::*;
     let clipped_tri: std::collections::HashSet<u32> = lamp_tris.iter().flatten().copied().collect();
-    let per_pixel: Vec<(Vec<f32>, [f64; 3])> = chosen
+    chosen
         .par_iter()
         .enumerate()
         .map(|(j, &i)| {
@@ -292,16 +335,25 @@ pub fn solve_clipped(
                 .collect();
             (d, e)
         })
-        .collect();
-    let direct: Vec<Vec<f32>> = per_pixel.iter().map(|(d, _)| d.clone()).collect();
+        .collect()
+}
 
-    let nk = clipped.len();
-    let mut le: Vec<[f64; 3]> = level.clone();
+/// The alternating solve per channel: the part albedos k_P for the current radiance, then the
+/// radiance Le_k ≥ `level` for the current albedos (normal equations, projected), on relative
+/// residuals with Cauchy weights; 200 rounds. `obs` holds the pixels' photo values, `per_pixel`
+/// their (D, E), `part` their part index.
+fn alternate(
+    obs: &[[f64; 3]],
+    per_pixel: &[(Vec<f32>, [f64; 3])],
+    part: &[usize],
+    n_parts: usize,
+    level: &[[f64; 3]],
+) -> Vec<[f64; 3]> {
+    let nk = level.len();
+    let direct: Vec<&Vec<f32>> = per_pixel.iter().map(|(d, _)| d).collect();
+    let mut le: Vec<[f64; 3]> = level.to_vec();
     for c in 0..3 {
-        let obs: Vec<f64> = chosen
-            .iter()
-            .map(|&i| store.pixels.gt[3 * i + c] as f64)
-            .collect();
+        let obs: Vec<f64> = obs.iter().map(|o| o[c]).collect();
         let rest: Vec<f64> = per_pixel.iter().map(|(_, e)| e[c]).collect();
         let mut kd = vec![0.5f64; n_parts];
         let shading = |j: usize, le: &[[f64; 3]]| {
@@ -362,15 +414,5 @@ pub fn solve_clipped(
             }
         }
     }
-    for (k, &g) in clipped.iter().enumerate() {
-        let solved = le[k].map(|x| x as f32);
-        for &i in &groups[g] {
-            emitters[i].radiance = solved;
-        }
-        report.lamps[g].solved = solved;
-        report.lamps[g].solved_clipped = true;
-    }
-    report.pixels = chosen.len();
-    report.parts = n_parts;
-    report
+    le
 }

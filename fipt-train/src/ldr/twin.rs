@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use fipt_core::scene::dataset::Layout;
 use fipt_core::scene::ldr::Response;
 use fipt_core::scene::{Dataset, LoadOptions, MapKind, Split};
+use image::ImageEncoder;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -194,8 +195,6 @@ fn write_photo(path: &Path, w: usize, h: usize, codes: &[u8], job: &TwinJob) -> 
     }
     std::fs::write(path, bytes).with_context(|| format!("{}: cannot write", path.display()))
 }
-use image::ImageEncoder;
-
 /// Hard-links (or copies) the tree `from` into `to`, skipping the files `skip` says.
 fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) -> Result<()> {
     std::fs::create_dir_all(to).with_context(|| format!("{}: cannot create", to.display()))?;

@@ -6,7 +6,7 @@
 //! radiance from the unclipped pixels they light (`crate::ldr::lights`), and writes that
 //! radiance into the clipped channels of the lamps' pixels. From there the run is an HDR run
 //! (IRIS re-bakes its shadings with the learned emitter radiance likewise), except that round
-//! 0's emitters are solved once more (`resolve`): the photos' full lamps now show in the mask,
+//! 0's emitters are solved once more (`extract::solve_clipped_lamps`): the photos' full lamps now show in the mask,
 //! faces no photo saw included, which the first solve lacked and made up for in brightness.
 //!
 //! The solve is cached in `OUT/cache/lamps.json`, keyed by the clipped photos' bake key, the
@@ -20,7 +20,7 @@ use super::extract;
 use super::fit::{self, FitPlan};
 use super::pixels::PixelStore;
 use super::rounds::FitSetup;
-use crate::ldr::lights::{LightSolve, SolveConfig, solve_clipped};
+use crate::ldr::lights::LightSolve;
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -91,34 +91,13 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
         &ctx.cfg.emitters,
         ctx.seeds.base(),
     );
-    Ok(resolve(ctx, &baked, &store, &tr, &mut emitters))
-}
-
-/// The solve of the clipped lamps among `emitters`, on the fit `tr` of `store`.
-pub fn resolve(
-    ctx: &RunContext,
-    baked: &bake::Baked,
-    store: &PixelStore,
-    tr: &fipt_core::model::Trainer,
-    emitters: &mut [fipt_bake::emitters::Emitter],
-) -> LightSolve {
-    let cal = ctx.ldr.as_ref().expect("LDR photos");
-    solve_clipped(
-        &ctx.ds.mesh,
-        &ctx.accel,
-        &baked.light_field,
-        &ctx.ds.train,
-        &cal.train_exposures,
-        &baked.hits,
-        store,
-        tr,
-        emitters,
-        SolveConfig {
-            pixels: ctx.cfg.ldr.solve_pixels,
-            light_samples: ctx.cfg.ldr.light_samples,
-            seed: ctx.seeds.base(),
-        },
-    )
+    Ok(extract::solve_clipped_lamps(
+        ctx,
+        &baked,
+        &store,
+        &tr,
+        &mut emitters,
+    ))
 }
 
 /// Writes each solved lamp's radiance into the clipped channels of the train pixels that see

@@ -348,7 +348,7 @@ impl Rounds {
             ctx.seeds.base(),
         );
         if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
-            let solve = super::lamps::resolve(ctx, baked, store, tr, &mut e);
+            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e);
             self.ck.put(0, LIGHT_SOLVE, &solve)?;
         }
         self.ck.put(0, ROUND_EMITTERS, &e)?;
