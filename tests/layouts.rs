@@ -45,8 +45,8 @@ fn write_real(dir: &Path, scene: &Path, cams: &[&Camera]) {
 }
 
 /// nerfstudio layout: shared intrinsics at the top level, c2w = (right, up, back, position);
-/// every other file path without its extension (the loader adds `.exr`).
-fn write_nerfstudio(dir: &Path, scene: &Path, cams: &[&Camera]) {
+/// every other file path without its extension `ext` (the loader finds it).
+fn write_nerfstudio(dir: &Path, scene: &Path, cams: &[&Camera], ext: &str) {
     std::fs::create_dir_all(dir).unwrap();
     link(&scene.join("scene.obj"), &dir.join("scene.obj"));
     link(&scene.join("train/Image"), &dir.join("images"));
@@ -56,7 +56,7 @@ fn write_nerfstudio(dir: &Path, scene: &Path, cams: &[&Camera]) {
         .enumerate()
         .map(|(k, c)| {
             let m = c.to_opengl_c2w();
-            let ext = if k % 2 == 0 { ".exr" } else { "" };
+            let ext = if k % 2 == 0 { ext } else { "" };
             json!({"file_path": format!("images/{k:03}_0001{ext}"), "transform_matrix": m})
         })
         .collect();
@@ -88,7 +88,7 @@ fn real_and_nerfstudio_layouts_give_the_synthetic_rays() {
     let tmp = std::env::temp_dir().join(format!("fipt-layouts-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
     write_real(&tmp.join("real"), &scene, &cams);
-    write_nerfstudio(&tmp.join("ns"), &scene, &cams);
+    write_nerfstudio(&tmp.join("ns"), &scene, &cams, ".exr");
 
     for (name, layout) in [("real", Layout::FiptReal), ("ns", Layout::Nerfstudio)] {
         let ds = Dataset::load(&tmp.join(name), &opts).unwrap();
@@ -131,6 +131,55 @@ fn real_and_nerfstudio_layouts_give_the_synthetic_rays() {
             );
         }
         eprintln!("{name}: max direction difference {worst:e}");
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// LDR photos in the real layout (PNG) and the nerfstudio layout (JPEG, file paths with and
+/// without the extension) load as the synthetic layout's twins do: the same 8-bit codes.
+#[test]
+fn ldr_photos_load_in_every_layout() {
+    let tmp = std::env::temp_dir().join(format!("fipt-layouts-ldr-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let opts = LoadOptions {
+        maps: vec![],
+        val: false,
+    };
+    for (format, layout_dir, ext) in [
+        (fipt_train::ldr::twin::LdrFormat::Png, "real", ""),
+        (fipt_train::ldr::twin::LdrFormat::Jpeg, "ns", ".jpg"),
+    ] {
+        let twin = tmp.join(format!("twin-{layout_dir}"));
+        fipt_train::ldr::make_twin(&fipt_train::ldr::TwinJob {
+            scene: scene_dir(),
+            out: twin.clone(),
+            response: fipt_train::ldr::twin::CurveSpec::Srgb,
+            exposure: None,
+            clip_share: 0.01,
+            stops: 0.0,
+            give_exposure: false,
+            format,
+            quality: 90,
+            seed: 0,
+        })
+        .unwrap();
+        let syn = Dataset::load(&twin, &opts).unwrap();
+        assert!(syn.is_ldr());
+        let cams: Vec<&Camera> = syn.train.views.iter().map(|v| &v.camera).collect();
+        let dir = tmp.join(layout_dir);
+        match layout_dir {
+            "real" => write_real(&dir, &twin, &cams),
+            _ => write_nerfstudio(&dir, &twin, &cams, ext),
+        }
+        let ds = Dataset::load(&dir, &opts).unwrap();
+        assert!(ds.is_ldr(), "{layout_dir}");
+        assert_eq!(ds.train.views.len(), syn.train.views.len());
+        for (a, b) in syn.train.views.iter().zip(&ds.train.views) {
+            let (fa, fb) = (a.ldr.as_ref().unwrap(), b.ldr.as_ref().unwrap());
+            assert_eq!(fa.codes, fb.codes, "{layout_dir}: view {}", a.index);
+            assert_eq!(fa.clip_at, fb.clip_at);
+            assert_eq!(a.image.data, b.image.data);
+        }
     }
     std::fs::remove_dir_all(&tmp).unwrap();
 }
