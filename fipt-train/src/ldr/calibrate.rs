@@ -8,7 +8,7 @@
 //!   log-ratio of a frame's linearised pixels to the cross-view radiance of the points they see
 //!   is that frame's log exposure. Points are keyed by (triangle, voxel of a 64³ grid); the
 //!   per-point radiance and the per-frame exposure are alternated as medians (robust to
-//!   highlights) over unclipped pixels, 8 times.
+//!   highlights) over unclipped pixels until no exposure moves.
 //! - **Scale**: nothing records the absolute radiance, so the median train frame's exposure is
 //!   1: radiance is in units of that frame's clip level.
 //!
@@ -41,6 +41,9 @@ pub struct Calibration {
 
 /// Voxels per side of the grid that keys surface points.
 const GRID: f32 = 64.0;
+
+/// The most rounds of the exposure estimate's alternation.
+const MAX_ROUNDS: usize = 400;
 
 /// Per view, per surface point (triangle, voxel): the mean code value in [0, 1] of each
 /// channel over the view's unclipped pixels there.
@@ -140,13 +143,24 @@ fn estimate_exposures(
     r: &Response,
 ) -> (Vec<f64>, Vec<f64>) {
     let train = point_means(train, r);
+    // Views that share few points pass an exposure change on slowly: alternate until no
+    // exposure moves by more than 0.01 %.
     let mut log_e = vec![0.0; train.len()];
-    for _ in 0..8 {
+    for _ in 0..MAX_ROUNDS {
         let rad = radiance_of(&train, &log_e, 2);
-        log_e = exposures_against(&train, &rad);
-        let mut m = log_e.clone();
+        let mut next = exposures_against(&train, &rad);
+        let mut m = next.clone();
         let mid = median(&mut m).unwrap_or(0.0);
-        log_e.iter_mut().for_each(|e| *e -= mid);
+        next.iter_mut().for_each(|e| *e -= mid);
+        let moved = next
+            .iter()
+            .zip(&log_e)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        log_e = next;
+        if moved < 1e-4 {
+            break;
+        }
     }
     let rad = radiance_of(&train, &log_e, 2);
     let val = match val {
