@@ -1,8 +1,9 @@
 //! Emitter extraction (paper §4.4, Eq. 13): the reflected radiance the fitted BRDF predicts at
 //! every training pixel, then the per-triangle α test and median emission of fipt-bake.
 //!
-//! With LDR photos, the clipped lamps among the emitters have their radiance solved from the
-//! pixels they light (`solve_clipped_lamps`, `crate::ldr::lights`).
+//! With LDR photos, triangles whose pixels are all but always clipped are emitters too
+//! (`add_saturated`), and the clipped lamps among the emitters have their radiance solved from
+//! the pixels they light (`solve_clipped_lamps`, `crate::ldr::lights`).
 //!
 //! Owns: the glue between the fitted model, the photos and `fipt_bake::emitters`. Must not
 //! touch: the extraction rule itself.
@@ -40,7 +41,7 @@ pub fn extract_emitters(
             reflected: r,
         })
         .collect();
-    emitters::extract(
+    let mut found = emitters::extract(
         mesh,
         &mut |p| tr.model.alpha(p),
         &views,
@@ -51,7 +52,68 @@ pub fn extract_emitters(
             fill_unseen: cfg.fill_unseen,
             seed,
         },
-    )
+    );
+    if train.is_ldr() {
+        add_saturated(mesh, train, &baked.hits, &mut found);
+    }
+    found
+}
+
+/// Fewest photo pixels of a triangle for the saturation rule.
+const SATURATED_MIN_PIXELS: u32 = 4;
+/// Share of a triangle's photo pixels that must be clipped for the saturation rule.
+const SATURATED_SHARE: f64 = 0.9;
+
+/// LDR photos: a triangle whose photo pixels are clipped in at least 90 % of its observations
+/// (4 or more, at every exposure the views were taken at) joins the emitters, at its pixels'
+/// mean value (its clip level). A lamp's render can reach a low clip level through its base
+/// colour, which leaves the emission mask nothing to learn there; saturation alone finds it
+/// (IRIS's rule is a mean LDR value above 0.99 per triangle).
+fn add_saturated(
+    mesh: &Mesh,
+    train: &Split,
+    hits: &[fipt_bake::ViewHits],
+    found: &mut Vec<Emitter>,
+) {
+    use std::collections::HashMap;
+    let known: std::collections::HashSet<u32> = found.iter().map(|e| e.triangle).collect();
+    // Per triangle: pixels, clipped pixels, sum of values, pixels seen from the front and back.
+    let mut seen: HashMap<u32, (u32, u32, [f64; 3], [u32; 2])> = HashMap::new();
+    for (v, h) in train.views.iter().zip(hits) {
+        let Some(f) = &v.ldr else { continue };
+        for p in 0..h.num_pixels() {
+            let Ok(t) = u32::try_from(h.tri[p]) else {
+                continue;
+            };
+            if known.contains(&t) {
+                continue;
+            }
+            let e = seen.entry(t).or_default();
+            e.0 += 1;
+            e.1 += u32::from(f.pixel_clipped(p));
+            for c in 0..3 {
+                e.2[c] += v.image.data[3 * p + c] as f64;
+            }
+            let front = mesh.normal(t as usize).dot(h.direction[p]) < 0.0;
+            e.3[usize::from(!front)] += 1;
+        }
+    }
+    let mut add: Vec<(u32, Emitter)> = seen
+        .into_iter()
+        .filter(|(_, s)| s.0 >= SATURATED_MIN_PIXELS && s.1 as f64 >= SATURATED_SHARE * s.0 as f64)
+        .map(|(t, s)| {
+            let radiance = s.2.map(|x| (x / s.0 as f64) as f32);
+            let e = Emitter {
+                pixels: s.0,
+                seen_front: s.3[0],
+                seen_back: s.3[1],
+                ..Emitter::on_triangle(mesh, t as usize, radiance)
+            };
+            (t, e)
+        })
+        .collect();
+    add.sort_by_key(|(t, _)| *t);
+    found.extend(add.into_iter().map(|(_, e)| e));
 }
 
 /// LDR photos: the solve of the clipped lamps among `emitters` (their radiance set in place),
