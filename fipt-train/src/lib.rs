@@ -24,4 +24,5 @@ pub mod rerender;
 
 pub mod scene_model;
 pub mod suite;
+pub mod union_find;
 pub mod zoo;

@@ -69,25 +69,6 @@ fn project(p: Vec3, axis: u8) -> Vec2 {
     }
 }
 
-struct UnionFind(Vec<u32>);
-
-impl UnionFind {
-    fn find(&mut self, mut a: u32) -> u32 {
-        while self.0[a as usize] != a {
-            let up = self.0[self.0[a as usize] as usize];
-            self.0[a as usize] = up;
-            a = up;
-        }
-        a
-    }
-    fn union(&mut self, a: u32, b: u32) {
-        let (ra, rb) = (self.find(a), self.find(b));
-        if ra != rb {
-            self.0[ra.max(rb) as usize] = ra.min(rb);
-        }
-    }
-}
-
 /// One chart before packing: its triangles and their projected corners (world units).
 struct Chart {
     tris: Vec<u32>,
@@ -221,7 +202,7 @@ pub fn build(mesh: &Mesh, group: &[u32], size: usize, pad: usize) -> Result<Atla
         })
         .collect();
     let axis: Vec<u8> = (0..n).map(|t| axis_of(mesh.cross(t))).collect();
-    let mut uf = UnionFind((0..n as u32).collect());
+    let mut uf = crate::union_find::UnionFind::new(n);
     let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
     for t in 0..n {
         if mesh.area(t) <= 0.0 {

@@ -59,32 +59,17 @@ pub struct SolveConfig {
 /// Groups emitters into lamps: triangles that share a vertex position.
 fn lamps(mesh: &Mesh, emitters: &[Emitter]) -> Vec<Vec<usize>> {
     let key = |v: Vec3| (v * 1e4).round().as_ivec3();
-    let mut parent: Vec<usize> = (0..emitters.len()).collect();
-    fn find(p: &mut [usize], mut i: usize) -> usize {
-        while p[i] != i {
-            p[i] = p[p[i]];
-            i = p[i];
-        }
-        i
-    }
+    let mut sets = crate::union_find::UnionFind::new(emitters.len());
     let mut at: HashMap<glam::IVec3, usize> = HashMap::new();
     for (i, e) in emitters.iter().enumerate() {
         for v in mesh.corners(e.triangle as usize) {
-            match at.get(&key(v)) {
-                Some(&j) => {
-                    let (a, b) = (find(&mut parent, i), find(&mut parent, j));
-                    parent[a] = b;
-                }
-                None => {
-                    at.insert(key(v), i);
-                }
-            }
+            let j = *at.entry(key(v)).or_insert(i);
+            sets.union(i as u32, j as u32);
         }
     }
-    let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
+    let mut groups: HashMap<u32, Vec<usize>> = HashMap::new();
     for i in 0..emitters.len() {
-        let r = find(&mut parent, i);
-        groups.entry(r).or_default().push(i);
+        groups.entry(sets.find(i as u32)).or_default().push(i);
     }
     let mut g: Vec<Vec<usize>> = groups.into_values().collect();
     g.sort();
@@ -119,9 +104,9 @@ pub fn solve_clipped(
     for ((v, h), &e) in train.views.iter().zip(hits).zip(exposures) {
         let Some(f) = &v.ldr else { continue };
         for p in 0..h.num_pixels() {
-            if let Some(&g) = lamp_of_tri
-                .get(&(h.tri[p].max(0) as u32))
-                .filter(|_| h.tri[p] >= 0)
+            if let Some(&g) = u32::try_from(h.tri[p])
+                .ok()
+                .and_then(|t| lamp_of_tri.get(&t))
             {
                 seen[g].0 += 1;
                 seen[g].1 += f.pixel_clipped(p) as usize;
@@ -189,8 +174,10 @@ pub fn solve_clipped(
     let stride = (cand.len() / cfg.pixels.max(1)).max(1);
     let chosen: Vec<usize> = cand.iter().step_by(stride).copied().collect();
     // Parts: the segment ids, else triangles.
+    let seg = &store.pixels.seg;
+    let has_parts = seg.iter().any(|&s| s != seg[0]);
     let part_key = |i: usize| {
-        if store.pixels.seg.iter().any(|&s| s != store.pixels.seg[0]) {
+        if has_parts {
             store.pixels.seg[i] as i64
         } else {
             let (k, p) = store.origin[i];
