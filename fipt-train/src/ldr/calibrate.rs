@@ -27,7 +27,7 @@ pub enum ExposureSource {
     Estimated,
 }
 
-/// What a run assumed and estimated about its LDR photos (`OUT/ldr.json`).
+/// What a run assumed and estimated about its LDR photos (`metrics.json` → `ldr.calibration`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Calibration {
     pub response: Response,
@@ -83,15 +83,16 @@ fn point_codes(ds: &Dataset, accel: &Accel, split: &Split) -> PointCodes {
         .collect()
 }
 
-/// The mean linear luminance (response `r`, exposure 1) of every point of every view, where
-/// above 1e-4.
-fn point_means(codes: &PointCodes, r: &Response) -> Vec<HashMap<u64, f64>> {
+/// The log of the mean linear luminance (response `r`, exposure 1) of every point of every
+/// view, where the luminance is above 1e-4.
+fn point_logs(codes: &PointCodes, r: &Response) -> Vec<HashMap<u64, f64>> {
     codes
         .iter()
         .map(|m| {
             m.iter()
                 .map(|(k, v)| (*k, (0..3).map(|c| r.inverse(c, v[c])).sum::<f64>() / 3.0))
                 .filter(|(_, y)| *y > 1e-4)
+                .map(|(k, y)| (k, y.ln()))
                 .collect()
         })
         .collect()
@@ -106,27 +107,27 @@ fn median(v: &mut [f64]) -> Option<f64> {
     Some(*m)
 }
 
-/// Log exposures of `views` against per-point log radiance `radiance` (frames that share no
-/// point with it keep 0).
+/// Log exposures of `views` (per-point log luminance) against per-point log radiance
+/// `radiance` (frames that share no point with it keep 0).
 fn exposures_against(views: &[HashMap<u64, f64>], radiance: &HashMap<u64, f64>) -> Vec<f64> {
     views
         .iter()
         .map(|m| {
             let mut d: Vec<f64> = m
                 .iter()
-                .filter_map(|(k, y)| radiance.get(k).map(|r| y.ln() - r))
+                .filter_map(|(k, ly)| radiance.get(k).map(|r| ly - r))
                 .collect();
             median(&mut d).unwrap_or(0.0)
         })
         .collect()
 }
 
-/// Per-point log radiance: the median over views of log y − log e.
+/// Per-point log radiance: the median over views of log y − log e (`views`: log y).
 fn radiance_of(views: &[HashMap<u64, f64>], log_e: &[f64], min_views: usize) -> HashMap<u64, f64> {
     let mut per: HashMap<u64, Vec<f64>> = HashMap::new();
     for (m, le) in views.iter().zip(log_e) {
-        for (k, y) in m {
-            per.entry(*k).or_default().push(y.ln() - le);
+        for (k, ly) in m {
+            per.entry(*k).or_default().push(ly - le);
         }
     }
     per.into_iter()
@@ -142,7 +143,7 @@ fn estimate_exposures(
     val: Option<&PointCodes>,
     r: &Response,
 ) -> (Vec<f64>, Vec<f64>) {
-    let train = point_means(train, r);
+    let train = point_logs(train, r);
     // Views that share few points pass an exposure change on slowly: alternate until no
     // exposure moves by more than 0.01 %.
     let mut log_e = vec![0.0; train.len()];
@@ -164,7 +165,7 @@ fn estimate_exposures(
     }
     let rad = radiance_of(&train, &log_e, 2);
     let val = match val {
-        Some(v) => exposures_against(&point_means(v, r), &rad),
+        Some(v) => exposures_against(&point_logs(v, r), &rad),
         None => Vec::new(),
     };
     (

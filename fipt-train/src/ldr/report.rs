@@ -29,8 +29,32 @@ pub struct LdrReport {
     pub relight_psnr_aligned: Option<f64>,
 }
 
-/// PSNR (data range 1) of `render` (linear) through the response at exposure `e`, against
-/// the codes of the LDR photo.
+impl LdrReport {
+    /// The report of a run: its calibration and solves, and the scores of the val re-renders
+    /// in `render_dir` (`Image/`, `Relight/`) where `val` is given (the renders were made).
+    pub fn new(
+        cal: &Calibration,
+        light_solve: Option<LightSolve>,
+        light_resolve: Option<LightSolve>,
+        val: Option<&Split>,
+        render_dir: &Path,
+    ) -> Self {
+        let per_view = val.map_or(Vec::new(), |v| val_psnr(v, cal, &render_dir.join("Image")));
+        let relit = val.and_then(|v| relight_aligned(v, &render_dir.join("Relight")));
+        Self {
+            calibration: cal.clone(),
+            light_solve,
+            light_resolve,
+            view_psnr_ldr: crate::rerender::mean(&per_view),
+            view_psnr_ldr_per_view: per_view,
+            relight_scale: relit.map(|r| r.0),
+            relight_psnr_aligned: relit.map(|r| r.1),
+        }
+    }
+}
+
+/// PSNR (data range 1, `image_metrics::psnr`) of `render` (linear) through the response at
+/// exposure `e`, against the codes of the LDR photo.
 pub fn ldr_psnr(render: &Image, codes: &[u8], cal: &Calibration, e: f64) -> f64 {
     let mut se = 0.0f64;
     for (i, (&l, &code)) in render.data.iter().zip(codes).enumerate() {
@@ -40,8 +64,7 @@ pub fn ldr_psnr(render: &Image, codes: &[u8], cal: &Calibration, e: f64) -> f64 
         let d = v - code as f64 / 255.0;
         se += d * d;
     }
-    let mse = (se / codes.len().max(1) as f64).max(1e-10);
-    -10.0 * mse.log10()
+    crate::image_metrics::psnr(se, codes.len()).unwrap_or(f64::NAN)
 }
 
 /// The LDR PSNR of every val view whose re-render `render_dir/{k:03}_0001.exr` exists.

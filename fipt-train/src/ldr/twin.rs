@@ -195,6 +195,7 @@ fn write_photo(path: &Path, w: usize, h: usize, codes: &[u8], job: &TwinJob) -> 
     }
     std::fs::write(path, bytes).with_context(|| format!("{}: cannot write", path.display()))
 }
+
 /// Hard-links (or copies) the tree `from` into `to`, skipping the files `skip` says.
 fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) -> Result<()> {
     std::fs::create_dir_all(to).with_context(|| format!("{}: cannot create", to.display()))?;
@@ -228,6 +229,9 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
     }
     if !(0.0..=3.0).contains(&job.stops) {
         bail!("--stops {}: expected 0 to 3", job.stops);
+    }
+    if job.give_exposure && ds.layout != Layout::FiptSynthetic {
+        bail!("--give-exposure needs the FIPT synthetic layout's transforms.json");
     }
     let response = job.response.response();
     let ext = match job.format {
@@ -296,10 +300,7 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
                 exposures.push(e);
             }
             if job.give_exposure {
-                let cams = match ds.layout {
-                    Layout::FiptSynthetic => tmp.join(&split.name).join("transforms.json"),
-                    _ => bail!("--give-exposure needs the FIPT synthetic layout's transforms.json"),
-                };
+                let cams = tmp.join(&split.name).join("transforms.json");
                 let text = std::fs::read_to_string(&cams)?;
                 let mut json: Value = serde_json::from_str(&text)?;
                 let frames = json["frames"].as_array_mut().context("frames")?;

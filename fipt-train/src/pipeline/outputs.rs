@@ -269,37 +269,13 @@ pub fn run_report(
         zoo_entry: None,
         resumed: fitted.resumed.take(),
         ldr: ctx.ldr.as_ref().map(|cal| {
-            let per_view = match (&ctx.ds.val, renders_done) {
-                (Some(val), true) => crate::ldr::report::val_psnr(
-                    val,
-                    cal,
-                    &ctx.out.join("render").join("val").join("Image"),
-                ),
-                _ => Vec::new(),
-            };
-            let relit = match (&ctx.ds.val, renders_done) {
-                (Some(val), true) => crate::ldr::report::relight_aligned(
-                    val,
-                    &ctx.out.join("render").join("val").join("Relight"),
-                ),
-                _ => None,
-            };
-            crate::ldr::report::LdrReport {
-                calibration: cal.clone(),
-                light_solve: ctx.light_solve.clone(),
-                light_resolve: std::fs::read_to_string(
-                    ctx.out
-                        .join("checkpoint")
-                        .join("round0")
-                        .join(super::rounds::LIGHT_SOLVE),
-                )
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok()),
-                view_psnr_ldr: crate::rerender::mean(&per_view),
-                view_psnr_ldr_per_view: per_view,
-                relight_scale: relit.map(|r| r.0),
-                relight_psnr_aligned: relit.map(|r| r.1),
-            }
+            crate::ldr::report::LdrReport::new(
+                cal,
+                ctx.light_solve.clone(),
+                fitted.light_resolve.clone(),
+                ctx.ds.val.as_ref().filter(|_| renders_done),
+                &ctx.out.join("render").join("val"),
+            )
         }),
     }
 }

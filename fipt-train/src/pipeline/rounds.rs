@@ -25,7 +25,7 @@ const ROUND_REPORT: &str = "report.json";
 /// Round 0's emitters in its checkpoint folder.
 const ROUND_EMITTERS: &str = "emitters.json";
 /// LDR photos: round 0's solve of the clipped lamps.
-pub const LIGHT_SOLVE: &str = "light_solve.json";
+const LIGHT_SOLVE: &str = "light_solve.json";
 
 /// What every round's fit shares: the segmentation loss, the scene box, the device and the
 /// hash grid's levels (from the pixel footprint).
@@ -76,6 +76,8 @@ pub struct Rounds {
     ck: Checkpoints,
     pub reports: Vec<RoundReport>,
     emitters: Option<Vec<Emitter>>,
+    /// LDR photos: round 0's solve of the clipped lamps.
+    light_resolve: Option<crate::ldr::lights::LightSolve>,
     /// The last finished fit: its trainer and loss log.
     prev: Option<(Trainer, TrainLog)>,
     /// Where the run resumed, for its report (None: from the start).
@@ -91,6 +93,8 @@ pub struct Fitted {
     pub trainer: Trainer,
     pub log: TrainLog,
     pub emitters: Vec<Emitter>,
+    /// LDR photos: round 0's solve of the clipped lamps (the radiance the emitters keep).
+    pub light_resolve: Option<crate::ldr::lights::LightSolve>,
     /// The last round's refinement and fit.
     pub work: RoundWork,
     pub reports: Vec<RoundReport>,
@@ -136,6 +140,8 @@ impl Rounds {
                 (Vec::new(), None, None)
             }
         };
+        // Only for the report: a damaged solve is left out of it, not a reason to refit.
+        let light_resolve = ck.get(0, LIGHT_SOLVE).ok().flatten();
         let resumed = match first {
             0 => None,
             r if r > last => Some(format!("the outputs (all {r} fits restored)")),
@@ -150,6 +156,7 @@ impl Rounds {
             ck,
             reports,
             emitters,
+            light_resolve,
             prev,
             resumed,
             first,
@@ -350,6 +357,7 @@ impl Rounds {
         if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
             let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e);
             self.ck.put(0, LIGHT_SOLVE, &solve)?;
+            self.light_resolve = Some(solve);
         }
         self.ck.put(0, ROUND_EMITTERS, &e)?;
         self.emitters = Some(e);
@@ -401,6 +409,7 @@ impl Rounds {
             trainer,
             log,
             emitters: self.emitters.context("no emitters")?,
+            light_resolve: self.light_resolve,
             work,
             reports: self.reports,
             resumed: self.resumed,
