@@ -541,11 +541,7 @@ fn read_any_photo(
     exposure: Option<f64>,
 ) -> Result<(Image, Option<LdrFrame>)> {
     if !is_ldr_ext(path) {
-        let img = read_photo_unsized(path)?;
-        if let Some(s) = size {
-            check_size(&img, path, s)?;
-        }
-        return Ok((img, None));
+        return Ok((read_sized(path, 3, false, size)?, None));
     }
     let mut f = read_ldr(path)?;
     f.exposure = exposure;
@@ -572,23 +568,21 @@ fn frame_exposure(f: &Value, path: &Path, k: usize) -> Result<Option<f64>> {
 
 /// Reads one map file and keeps the channels its kind needs.
 fn read_map(path: &Path, kind: MapKind, size: (usize, usize)) -> Result<Image> {
-    read_sized(path, kind.channels(), kind.is_label(), size)
+    read_sized(path, kind.channels(), kind.is_label(), Some(size))
 }
 
-/// Reads an HDR photo (3 channels).
-fn read_photo_unsized(path: &Path) -> Result<Image> {
+/// Reads an EXR with `channels` channels (1: the first; 3: a single channel repeated), of
+/// `size` where given, its values integers where `is_label`.
+fn read_sized(
+    path: &Path,
+    channels: usize,
+    is_label: bool,
+    size: Option<(usize, usize)>,
+) -> Result<Image> {
     let img = Image::read_exr(path)?;
-    Ok(if img.channels == 1 {
-        let data = img.data.iter().flat_map(|&v| [v, v, v]).collect();
-        Image::from_data(img.width, img.height, 3, data)
-    } else {
-        img
-    })
-}
-
-fn read_sized(path: &Path, channels: usize, is_label: bool, size: (usize, usize)) -> Result<Image> {
-    let img = Image::read_exr(path)?;
-    check_size(&img, path, size)?;
+    if let Some(size) = size {
+        check_size(&img, path, size)?;
+    }
     let img = if channels == 1 {
         img.first_channel()
     } else if img.channels == 1 {
