@@ -183,3 +183,63 @@ fn ldr_photos_load_in_every_layout() {
     }
     std::fs::remove_dir_all(&tmp).unwrap();
 }
+
+/// The `ldr` twin of a nerfstudio scene (file paths with and without the extension): its
+/// photos are the synthetic layout's twin's, its transforms.json names them and carries the
+/// exposures, and the source's photos are left as they were.
+#[test]
+fn nerfstudio_scenes_have_ldr_twins() {
+    let tmp = std::env::temp_dir().join(format!("fipt-layouts-ns-twin-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let opts = LoadOptions {
+        maps: vec![],
+        val: false,
+    };
+    let scene = scene_dir();
+    let hdr = Dataset::load(&scene, &opts).unwrap();
+    let cams: Vec<&Camera> = hdr.train.views.iter().map(|v| &v.camera).collect();
+    let ns = tmp.join("ns");
+    write_nerfstudio(&ns, &scene, &cams, ".exr");
+    let job = |scene: PathBuf, out: PathBuf| fipt_train::ldr::TwinJob {
+        scene,
+        out,
+        response: fipt_train::ldr::twin::CurveSpec::Gamma([2.0, 2.2, 2.4]),
+        exposure: Some(0.3),
+        clip_share: 0.01,
+        stops: 1.0,
+        give_exposure: true,
+        format: fipt_train::ldr::twin::LdrFormat::Png,
+        quality: 90,
+        seed: 4,
+    };
+    let truth = fipt_train::ldr::make_twin(&job(ns.clone(), tmp.join("ns-ldr"))).unwrap();
+    fipt_train::ldr::make_twin(&job(scene.clone(), tmp.join("syn-ldr"))).unwrap();
+    let a = Dataset::load(&tmp.join("ns-ldr"), &opts).unwrap();
+    let b = Dataset::load(&tmp.join("syn-ldr"), &opts).unwrap();
+    assert!(a.is_ldr());
+    assert_eq!(a.train.views.len(), b.train.views.len());
+    let base = truth.exposure;
+    for ((va, vb), e) in a
+        .train
+        .views
+        .iter()
+        .zip(&b.train.views)
+        .zip(&truth.splits[0].exposures)
+    {
+        let (fa, fb) = (va.ldr.as_ref().unwrap(), vb.ldr.as_ref().unwrap());
+        assert_eq!(fa.codes, fb.codes, "view {}", va.index);
+        let given = fa.exposure.expect("exposure written");
+        assert!((given - e / base).abs() < 1e-9, "view {}", va.index);
+    }
+    // The exposures spread over the stops asked for.
+    let ex = &truth.splits[0].exposures;
+    let (lo, hi) = ex
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
+    assert!(hi / lo > 1.5 && hi / lo <= 4.0 + 1e-9, "{lo} {hi}");
+    // The source still holds its HDR photos and no LDR one.
+    assert!(ns.join("images/000_0001.exr").is_file());
+    assert!(!ns.join("images/000_0001.png").exists());
+    assert!(!scene.join("train/Image/000_0001.png").exists());
+    std::fs::remove_dir_all(&tmp).unwrap();
+}

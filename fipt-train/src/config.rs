@@ -105,6 +105,11 @@ pub struct LdrSection {
     /// Solve the radiance of clipped emitters from the pixels they light (false: keep the clip
     /// level, IRIS's extraction before its optimisation).
     pub solve_emitters: bool,
+    /// Estimate the camera response (γ per channel on the sRGB curve, `crate::ldr::response`)
+    /// with the emitter solve where lamps are clipped and it has 1,000 pixels or more; false
+    /// (the default): the sRGB curve. On fipt-room's twins the estimate is biased low
+    /// (`docs/ldr.md`).
+    pub estimate_response: bool,
     /// Pixels of the emitter solve.
     pub solve_pixels: usize,
     /// Light samples per pixel and lamp in the emitter solve.
@@ -116,6 +121,7 @@ impl Default for LdrSection {
         Self {
             estimate_exposure: true,
             solve_emitters: true,
+            estimate_response: false,
             solve_pixels: 20_000,
             light_samples: 64,
         }

@@ -620,6 +620,7 @@ fn ldr_section(h: &mut String, l: &crate::ldr::report::LdrReport) {
         match cal.exposure_source {
             crate::ldr::calibrate::ExposureSource::Given => "given",
             crate::ldr::calibrate::ExposureSource::Estimated => "estimated",
+            crate::ldr::calibrate::ExposureSource::Unit => "taken as 1 (not given, not estimated)",
         },
         e.len(),
         lo,
@@ -657,7 +658,20 @@ fn ldr_section(h: &mut String, l: &crate::ldr::report::LdrReport) {
             pts.join(" ")
         );
     }
-    h.push_str("</svg><p>The camera response f (R, G, B) the photos were linearised with.</p>");
+    let how = match l.light_solve.as_ref().and_then(|s| s.response.as_ref()) {
+        Some(r) => format!(
+            "estimated: the sRGB curve after the exponents γ = {:.3}, {:.3}, {:.3}",
+            r.gamma[0], r.gamma[1], r.gamma[2]
+        ),
+        None => "the sRGB curve, not estimated".to_string(),
+    };
+    let truth = l.response_rms_to_truth.map_or(String::new(), |d| {
+        format!("; {d:.4} RMS from the twin's true curve")
+    });
+    let _ = write!(
+        h,
+        "</svg><p>The camera response f (R, G, B) the photos were linearised with ({how}{truth}).</p>"
+    );
     for (title, solve) in [
         ("before the bake", &l.light_solve),
         ("after round 0 (kept)", &l.light_resolve),

@@ -211,6 +211,14 @@ impl Response {
         Self::from_forward(|_, x| linear_to_srgb(x))
     }
 
+    /// The response family fipt estimates: the sRGB curve after a power per channel,
+    /// g_c(v) = srgb⁻¹(v)^γ_c (γ = 1: sRGB). A camera's tone curve departs from the sRGB
+    /// encoding chiefly in contrast, which γ_c carries; one number per channel is what a single
+    /// exposure's photos determine (`fipt-train/src/ldr/response.rs`).
+    pub fn srgb_power(gamma: [f64; 3]) -> Self {
+        Self::from_forward(|c, x| linear_to_srgb(x.powf(1.0 / gamma[c])))
+    }
+
     /// A pure power law f(x) = x^(1/γ_c) per channel.
     pub fn gamma(g: [f64; 3]) -> Self {
         Self::from_forward(|c, x| x.powf(1.0 / g[c]))

@@ -1,8 +1,9 @@
 //! The camera response and the per-frame exposures of LDR photos, and the photos linearised with
 //! them (L = g(I)/e) before anything reads them.
 //!
-//! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in unless a camera
-//!   says otherwise. It is not estimated (`docs/ldr.md` says why not yet).
+//! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in. With
+//!   `ldr.estimate_response`, the estimate (`super::response`, within the lamp solve) replaces
+//!   it before the bake.
 //! - **Exposure**: a frame's `exposure` where the capture gives it; else estimated. Every
 //!   surface point seen in several views has one radiance (up to its specular part), so the
 //!   log-ratio of a frame's linearised pixels to the cross-view radiance of the points they see
@@ -25,6 +26,8 @@ use std::collections::HashMap;
 pub enum ExposureSource {
     Given,
     Estimated,
+    /// Not given and not estimated (`ldr.estimate_exposure` off): every frame's is 1.
+    Unit,
 }
 
 /// What a run assumed and estimated about its LDR photos (`metrics.json` → `ldr.calibration`).
@@ -183,11 +186,20 @@ fn given(split: &Split, scale: f64) -> Option<Vec<f64>> {
         .collect()
 }
 
-/// Estimates the response and exposures of an LDR dataset and relinearises its photos with
+/// Takes the sRGB response, estimates the exposures of an LDR dataset and relinearises its photos with
 /// them (`View::image`). `estimate`: estimate exposures that the capture does not give (else
 /// every frame has exposure 1).
 pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration {
-    let response = Response::srgb();
+    calibrate_with(ds, accel, estimate, Response::srgb())
+}
+
+/// `calibrate` with a given response (the estimated one, `super::response`).
+pub fn calibrate_with(
+    ds: &mut Dataset,
+    accel: &Accel,
+    estimate: bool,
+    response: Response,
+) -> Calibration {
     let train_given = given(&ds.train, 1.0);
     let (source, train_e, val_e) = match train_given {
         Some(t) => {
@@ -208,7 +220,7 @@ pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration
             (ExposureSource::Estimated, t, v)
         }
         None => (
-            ExposureSource::Estimated,
+            ExposureSource::Unit,
             vec![1.0; ds.train.views.len()],
             ds.val
                 .as_ref()

@@ -12,6 +12,9 @@
 //! recorded unclipped) fixes the scale. The two are alternated as least squares per channel,
 //! with Le_k ≥ T_k (a clipped lamp emits at least its clip level).
 //!
+//! With `ldr.estimate_response` (and clipped lamps, and 1,000 pixels or more), the same solve is
+//! run for each response on a grid and the response chosen with it (`super::response`).
+//!
 //! Owns: grouping emitters into lamps, the solve. Must not touch: the extraction rule, the fit.
 
 use crate::pipeline::pixels::PixelStore;
@@ -46,6 +49,9 @@ pub struct LightSolve {
     /// Pixels the solve used, and parts they fell in.
     pub pixels: usize,
     pub parts: usize,
+    /// The response estimated with the solve (`super::response`), where it was.
+    #[serde(default)]
+    pub response: Option<super::response::ResponseFit>,
 }
 
 /// Settings of the solve.
@@ -54,6 +60,24 @@ pub struct SolveConfig {
     pub pixels: usize,
     pub light_samples: usize,
     pub seed: u64,
+    /// Estimate the response's γ per channel with the radiance and albedos; else the photos'
+    /// linearisation stands (γ = 1).
+    pub estimate_response: bool,
+    /// Whether the exposures were estimated (they then move with γ, `super::response`).
+    pub exposures_estimated: bool,
+}
+
+#[derive(Clone)]
+/// One pixel of the solve: its photo codes and their linear values g(code) under the response
+/// the photos are linearised with, its view's exposure, D_k per clipped lamp, and the L′
+/// samples of E (zero where a direction ends on a clipped lamp or leaves the scene).
+pub struct SolvePixel {
+    pub code: [f64; 3],
+    pub value: [f64; 3],
+    pub exposure: f64,
+    pub part: usize,
+    pub direct: Vec<f32>,
+    pub lprime: Vec<[f32; 3]>,
 }
 
 /// Groups emitters into lamps: triangles that share a vertex position.
@@ -194,12 +218,11 @@ pub fn solve_clipped(
         .collect();
     let n_parts = part_ids.len();
 
-    // D_k(p): unit-radiance irradiance/π from lamp k, by area sampling with visibility.
     let lamp_tris: Vec<Vec<u32>> = clipped
         .iter()
         .map(|&g| groups[g].iter().map(|&i| emitters[i].triangle).collect())
         .collect();
-    let per_pixel = light_terms(
+    let terms = light_terms(
         mesh,
         accel,
         light_field,
@@ -209,28 +232,62 @@ pub fn solve_clipped(
         &lamp_tris,
         cfg,
     );
-
-    let obs: Vec<[f64; 3]> = chosen
+    let pixels: Vec<SolvePixel> = chosen
         .iter()
-        .map(|&i| [0, 1, 2].map(|c| store.pixels.gt[3 * i + c] as f64))
+        .zip(part)
+        .zip(terms)
+        .map(|((&i, part), (direct, lprime))| {
+            let (k, p) = store.origin[i];
+            let f = train.views[k as usize].ldr.as_ref().expect("LDR views");
+            let e = exposures[k as usize];
+            SolvePixel {
+                code: [0, 1, 2].map(|c| f.codes[3 * p as usize + c] as f64 / 255.0),
+                value: [0, 1, 2].map(|c| store.pixels.gt[3 * i + c] as f64 * e),
+                exposure: e,
+                part,
+                direct,
+                lprime,
+            }
+        })
         .collect();
-    let le = alternate(&obs, &per_pixel, &part, n_parts, &level);
+    // Too few pixels say nothing of the response: the linearisation stands.
+    let solved =
+        if cfg.estimate_response && !clipped.is_empty() && pixels.len() >= MIN_RESPONSE_PIXELS {
+            let fit = super::response::estimate(&pixels, n_parts, &level, cfg.exposures_estimated);
+            let le = fit.radiance.clone();
+            report.response = Some(fit);
+            le
+        } else {
+            let le = [0, 1, 2].map(|c| {
+                let t = super::response::ChannelTerms::new(&pixels, &level, c, 1.0, false);
+                alternate(&t, &pixels, n_parts, ALTERNATIONS).0
+            });
+            (0..clipped.len())
+                .map(|k| [le[0][k], le[1][k], le[2][k]])
+                .collect()
+        };
     for (k, &g) in clipped.iter().enumerate() {
-        let solved = le[k].map(|x| x as f32);
+        let solved = solved[k].map(|x| x as f32);
         for &i in &groups[g] {
             emitters[i].radiance = solved;
         }
         report.lamps[g].solved = solved;
         report.lamps[g].solved_clipped = true;
     }
-    report.pixels = chosen.len();
+    report.pixels = pixels.len();
     report.parts = n_parts;
     report
 }
 
+/// The fewest solve pixels the response is estimated from.
+const MIN_RESPONSE_PIXELS: usize = 1000;
+
+/// Rounds of the alternation.
+pub const ALTERNATIONS: usize = 200;
+
 /// Per chosen pixel: D_k for every lamp of `lamp_tris` (irradiance/π at unit radiance, area
-/// sampling with visibility) and E (L′ over cosine-sampled directions that do not end on one of
-/// those lamps), per channel.
+/// sampling with visibility) and the samples of E (L′ at the ends of cosine-sampled directions,
+/// zero where one ends on one of those lamps or leaves the scene; E is their mean).
 #[allow(clippy::too_many_arguments)]
 fn light_terms(
     mesh: &Mesh,
@@ -241,7 +298,7 @@ fn light_terms(
     chosen: &[usize],
     lamp_tris: &[Vec<u32>],
     cfg: SolveConfig,
-) -> Vec<(Vec<f32>, [f64; 3])> {
+) -> Vec<(Vec<f32>, Vec<[f32; 3]>)> {
     let lamp_cdf: Vec<(Vec<f32>, f32)> = lamp_tris
         .iter()
         .map(|ts| {
@@ -269,9 +326,9 @@ fn light_terms(
             let mut rng = Rng::new(cfg.seed, j as u64);
             // E: cosine-weighted directions, L′ where they end on anything but a clipped lamp.
             let frame = fipt_core::brdf::Frame::new(n);
-            let mut e = [0.0f64; 3];
             let ne = 2 * cfg.light_samples;
-            for _ in 0..ne {
+            let mut e = vec![[0.0f32; 3]; ne];
+            for es in e.iter_mut() {
                 let w = frame.to_world(fipt_core::brdf::sample_cosine(
                     rng.next_f32(),
                     rng.next_f32(),
@@ -282,9 +339,7 @@ fn light_terms(
                 {
                     let y = o + w * hit.t;
                     let l = light_field.query(y, accel.facing_normal(hit.tri, w));
-                    for c in 0..3 {
-                        e[c] += l[c] as f64 / ne as f64;
-                    }
+                    *es = [l[0].max(0.0), l[1].max(0.0), l[2].max(0.0)];
                 }
             }
             let d = lamp_tris
@@ -325,81 +380,76 @@ fn light_terms(
         .collect()
 }
 
-/// The alternating solve per channel: the part albedos k_P for the current radiance, then the
-/// radiance Le_k ≥ `level` for the current albedos (normal equations, projected), on relative
-/// residuals with Cauchy weights; 200 rounds. `obs` holds the pixels' photo values, `per_pixel`
-/// their (D, E), `part` their part index.
-fn alternate(
-    obs: &[[f64; 3]],
-    per_pixel: &[(Vec<f32>, [f64; 3])],
-    part: &[usize],
+/// The alternating solve of one channel: the part albedos k_P for the current radiance, then
+/// the radiance Le_k ≥ T_k for the current albedos (normal equations, projected), on relative
+/// residuals with Cauchy weights; `rounds` rounds. Returns (Le_k, k_P).
+pub fn alternate(
+    t: &super::response::ChannelTerms,
+    pixels: &[SolvePixel],
     n_parts: usize,
-    level: &[[f64; 3]],
-) -> Vec<[f64; 3]> {
-    let nk = level.len();
-    let direct: Vec<&Vec<f32>> = per_pixel.iter().map(|(d, _)| d).collect();
-    let mut le: Vec<[f64; 3]> = level.to_vec();
-    for c in 0..3 {
-        let obs: Vec<f64> = obs.iter().map(|o| o[c]).collect();
-        let rest: Vec<f64> = per_pixel.iter().map(|(_, e)| e[c]).collect();
-        let mut kd = vec![0.5f64; n_parts];
-        let shading = |j: usize, le: &[[f64; 3]]| {
-            rest[j] + (0..nk).map(|k| le[k][c] * direct[j][k] as f64).sum::<f64>()
-        };
-        // Relative residuals, with Cauchy weights (scale 10 %) against outliers: highlights,
-        // textures within a part.
-        let mut w = vec![0.0f64; obs.len()];
-        for it in 0..200 {
-            for j in 0..obs.len() {
-                let o = obs[j].max(1e-3);
-                let rel = if it == 0 {
-                    0.0
-                } else {
-                    (obs[j] - kd[part[j]] * shading(j, &le)) / o
-                };
-                w[j] = 1.0 / (o * o * (1.0 + (rel / 0.1).powi(2)));
+    rounds: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let nk = t.level.len();
+    let (obs, rest, level) = (&t.obs, &t.rest, &t.level);
+    let mut le: Vec<f64> = level.clone();
+    let mut kd = vec![0.5f64; n_parts];
+    let shading = |j: usize, le: &[f64]| {
+        rest[j]
+            + (0..nk)
+                .map(|k| le[k] * pixels[j].direct[k] as f64)
+                .sum::<f64>()
+    };
+    // Relative residuals, with Cauchy weights (scale 10 %) against outliers: highlights,
+    // textures within a part.
+    let mut w = vec![0.0f64; obs.len()];
+    for it in 0..rounds {
+        for j in 0..obs.len() {
+            let o = obs[j].max(1e-3);
+            let rel = if it == 0 {
+                0.0
+            } else {
+                (obs[j] - kd[pixels[j].part] * shading(j, &le)) / o
+            };
+            w[j] = 1.0 / (o * o * (1.0 + (rel / 0.1).powi(2)));
+        }
+        // k_P for the current radiance.
+        let (mut num, mut den) = (vec![0.0; n_parts], vec![0.0; n_parts]);
+        for j in 0..obs.len() {
+            let s = shading(j, &le);
+            num[pixels[j].part] += w[j] * obs[j] * s;
+            den[pixels[j].part] += w[j] * s * s;
+        }
+        for q in 0..n_parts {
+            if den[q] > 0.0 {
+                kd[q] = (num[q] / den[q]).clamp(1e-3, 1.0);
             }
-            // k_P for the current radiance.
-            let (mut num, mut den) = (vec![0.0; n_parts], vec![0.0; n_parts]);
-            for j in 0..obs.len() {
-                let s = shading(j, &le);
-                num[part[j]] += w[j] * obs[j] * s;
-                den[part[j]] += w[j] * s * s;
-            }
-            for q in 0..n_parts {
-                kd[q] = if den[q] > 0.0 {
-                    (num[q] / den[q]).clamp(1e-3, 1.0)
-                } else {
-                    kd[q]
-                };
-            }
-            // Le for the current albedos: normal equations, projected onto Le ≥ T.
-            let mut a = vec![vec![0.0f64; nk]; nk];
-            let mut b = vec![0.0f64; nk];
-            for (j, d) in direct.iter().enumerate() {
-                let kq = kd[part[j]];
-                let r = obs[j] - kq * rest[j];
-                for k in 0..nk {
-                    let dk = kq * d[k] as f64;
-                    b[k] += w[j] * dk * r;
-                    for l in 0..nk {
-                        a[k][l] += w[j] * dk * kq * d[l] as f64;
-                    }
-                }
-            }
-            for _ in 0..20 {
-                for k in 0..nk {
-                    if a[k][k] <= 0.0 {
-                        continue;
-                    }
-                    let off: f64 = (0..nk)
-                        .filter(|&l| l != k)
-                        .map(|l| a[k][l] * le[l][c])
-                        .sum();
-                    le[k][c] = ((b[k] - off) / a[k][k]).max(level[k][c]);
+        }
+        if nk == 0 {
+            continue;
+        }
+        // Le for the current albedos: normal equations, projected onto Le ≥ T.
+        let mut a = vec![vec![0.0f64; nk]; nk];
+        let mut b = vec![0.0f64; nk];
+        for (j, px) in pixels.iter().enumerate() {
+            let kq = kd[px.part];
+            let r = obs[j] - kq * rest[j];
+            for k in 0..nk {
+                let dk = kq * px.direct[k] as f64;
+                b[k] += w[j] * dk * r;
+                for (akl, &dl) in a[k].iter_mut().zip(&px.direct) {
+                    *akl += w[j] * dk * kq * dl as f64;
                 }
             }
         }
+        for _ in 0..20 {
+            for k in 0..nk {
+                if a[k][k] <= 0.0 {
+                    continue;
+                }
+                let off: f64 = (0..nk).filter(|&l| l != k).map(|l| a[k][l] * le[l]).sum();
+                le[k] = ((b[k] - off) / a[k][k]).max(level[k]);
+            }
+        }
     }
-    le
+    (le, kd)
 }

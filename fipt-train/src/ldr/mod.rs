@@ -6,6 +6,7 @@
 //!   them before the bake;
 //! - `lights`: the HDR radiance of clipped emitters, solved from the unclipped pixels they
 //!   light;
+//! - `response`: the camera response, estimated within that solve;
 //! - `report`: the run's LDR figures (view synthesis scored in LDR).
 //!
 //! Owns: what LDR input changes in a run. Must not touch: the fit's losses (fipt-core), the
@@ -14,6 +15,7 @@
 pub mod calibrate;
 pub mod lights;
 pub mod report;
+pub mod response;
 pub mod twin;
 
 pub use calibrate::{Calibration, calibrate};

@@ -19,6 +19,10 @@ pub struct LdrReport {
     /// (the radiance the run keeps).
     pub light_solve: Option<LightSolve>,
     pub light_resolve: Option<LightSolve>,
+    /// Where the scene is an LDR twin (`ldr.json` beside its photos, which the method never
+    /// reads): the RMS distance of the response used from the true one (`Response::rms_forward`).
+    #[serde(default)]
+    pub response_rms_to_truth: Option<f64>,
     /// Mean over the val views of the LDR PSNR, and per view.
     pub view_psnr_ldr: Option<f64>,
     pub view_psnr_ldr_per_view: Vec<f64>,
@@ -38,6 +42,7 @@ impl LdrReport {
         light_resolve: Option<LightSolve>,
         val: Option<&Split>,
         render_dir: &Path,
+        scene: &Path,
     ) -> Self {
         let per_view = val.map_or(Vec::new(), |v| val_psnr(v, cal, &render_dir.join("Image")));
         let relit = val.and_then(|v| relight_aligned(v, &render_dir.join("Relight")));
@@ -45,6 +50,9 @@ impl LdrReport {
             calibration: cal.clone(),
             light_solve,
             light_resolve,
+            response_rms_to_truth: super::TwinTruth::load(&scene.join("ldr.json"))
+                .ok()
+                .map(|t| cal.response.rms_forward(&t.response)),
             view_psnr_ldr: crate::rerender::mean(&per_view),
             view_psnr_ldr_per_view: per_view,
             relight_scale: relit.map(|r| r.0),

@@ -1,8 +1,8 @@
 //! `fipt-train ldr`: the LDR twin of an HDR scene, as a phone would have taken its photos.
 //! Every photo becomes I = round(255·f(clip(e_i·L, 0, 1))) (IRIS's image formation, with
 //! rounding) in 8-bit PNG or JPEG; everything else of the scene folder (mesh, cameras, ground
-//! truth maps, relighting set) is linked or copied unchanged. `ldr.json` records the truth: the
-//! response, every exposure, the clipped shares.
+//! truth maps, relighting set) is linked or copied unchanged, in any of the three layouts.
+//! `ldr.json` records the truth: the response, every exposure, the clipped shares.
 //!
 //! Owns: the twin's image formation and layout. Must not touch: how fipt reads or fits LDR
 //! photos.
@@ -206,13 +206,80 @@ fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) -> Result<()>
         if skip(&src) {
             continue;
         }
-        if e.file_type()?.is_dir() {
+        // A linked folder is copied as a folder: the twin must never write through a link
+        // into the source.
+        if std::fs::metadata(&src)
+            .with_context(|| format!("{}: cannot read", src.display()))?
+            .is_dir()
+        {
             link_tree(&src, &dst, skip)?;
         } else if std::fs::hard_link(&src, &dst).is_err() {
             std::fs::copy(&src, &dst).with_context(|| format!("{}: cannot copy", src.display()))?;
         }
     }
     Ok(())
+}
+
+/// Per split, per view: the HDR photo's path and the LDR photo's, relative to the scene. The
+/// FIPT layouts name frames `Image/{k:03}_0001.exr`; nerfstudio's frames name theirs in
+/// `file_path` (with or without the extension), where the twin's photo keeps the name with
+/// `ext`.
+fn photo_paths(ds: &Dataset, scene: &Path, ext: &str) -> Result<Vec<Vec<(PathBuf, PathBuf)>>> {
+    let fipt = |split: &Split, dir: PathBuf| {
+        split
+            .views
+            .iter()
+            .map(|v| {
+                let name = format!("{:03}_0001", v.index);
+                (
+                    dir.join(format!("{name}.exr")),
+                    dir.join(format!("{name}.{ext}")),
+                )
+            })
+            .collect()
+    };
+    Ok(match ds.layout {
+        Layout::FiptSynthetic => ds
+            .splits()
+            .into_iter()
+            .map(|s| fipt(s, PathBuf::from(&s.name).join("Image")))
+            .collect(),
+        Layout::FiptReal => vec![fipt(&ds.train, PathBuf::from("Image"))],
+        Layout::Nerfstudio => {
+            let tpath = scene.join("transforms.json");
+            let json: Value = serde_json::from_str(
+                &std::fs::read_to_string(&tpath)
+                    .with_context(|| format!("{}: cannot read", tpath.display()))?,
+            )
+            .with_context(|| format!("{}: malformed", tpath.display()))?;
+            let frames = json["frames"].as_array().context("frames")?;
+            let paths = ds
+                .train
+                .views
+                .iter()
+                .map(|v| {
+                    let fp = frames[v.index]["file_path"].as_str().with_context(|| {
+                        format!("{}: frame {}: no file_path", tpath.display(), v.index)
+                    })?;
+                    let fp = PathBuf::from(fp);
+                    if fp.is_absolute()
+                        || fp
+                            .components()
+                            .any(|c| matches!(c, std::path::Component::ParentDir))
+                    {
+                        bail!(
+                            "{}: frame {}: file_path {} leaves the scene folder; the twin keeps its photos inside it",
+                            tpath.display(),
+                            v.index,
+                            fp.display()
+                        );
+                    }
+                    Ok((fp.with_extension("exr"), fp.with_extension(ext)))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            vec![paths]
+        }
+    })
 }
 
 /// Makes the twin in `job.out` (staged, then moved into place).
@@ -230,27 +297,17 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
     if !(0.0..=3.0).contains(&job.stops) {
         bail!("--stops {}: expected 0 to 3", job.stops);
     }
-    if job.give_exposure && ds.layout != Layout::FiptSynthetic {
-        bail!("--give-exposure needs the FIPT synthetic layout's transforms.json");
+    if job.give_exposure && ds.layout == Layout::FiptReal {
+        bail!("--give-exposure needs a transforms.json (the FIPT synthetic or nerfstudio layout)");
     }
     let response = job.response.response();
     let ext = match job.format {
         LdrFormat::Png => "png",
         LdrFormat::Jpeg => "jpg",
     };
-    // The photo folders, relative to the scene, and how their frames are named.
-    let photo_dirs: Vec<(&fipt_core::scene::Split, PathBuf)> = match ds.layout {
-        Layout::FiptSynthetic => ds
-            .splits()
-            .into_iter()
-            .map(|s| (s, PathBuf::from(&s.name).join("Image")))
-            .collect(),
-        Layout::FiptReal => vec![(&ds.train, PathBuf::from("Image"))],
-        Layout::Nerfstudio => bail!(
-            "{}: the nerfstudio layout is not converted yet (FIPT synthetic and real are)",
-            job.scene.display()
-        ),
-    };
+    let photos = photo_paths(&ds, &job.scene, ext)?;
+    let photo_dirs: Vec<(&Split, &Vec<(PathBuf, PathBuf)>)> =
+        ds.splits().into_iter().zip(&photos).collect();
     // Each view's stops u, drawn before the base exposure that depends on them.
     let mut rng = fipt_core::rng::Rng::new(job.seed, 0x1d2_7a1a);
     let stops: Vec<Vec<f64>> = photo_dirs
@@ -266,25 +323,31 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
         Some(e) => e,
         None => auto_exposure(&splits, &stops, job.clip_share),
     };
+    // The HDR photos stay behind, their extension in any case.
+    let key = |p: &Path| p.with_extension("").to_string_lossy().into_owned();
+    let sources: std::collections::HashSet<String> = photos
+        .iter()
+        .flatten()
+        .map(|(src, _)| key(&job.scene.join(src)))
+        .collect();
+    let skip = |p: &Path| {
+        p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")) && sources.contains(&key(p))
+    };
     let truth = crate::output::staged_dir(&job.out, |tmp| {
-        let skip = |p: &Path| {
-            let rel = p.strip_prefix(&job.scene).unwrap_or(p);
-            photo_dirs
-                .iter()
-                .any(|(_, d)| rel.parent() == Some(d.as_path()))
-                && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"))
-                && p.file_name().is_some_and(|n| n.len() == 12)
-        };
         link_tree(&job.scene, tmp, &skip)?;
         let mut splits = Vec::new();
-        for ((split, dir), us) in photo_dirs.iter().zip(&stops) {
+        for ((split, paths), us) in photo_dirs.iter().zip(&stops) {
             let mut exposures = Vec::new();
             let mut clipped_share = Vec::new();
             let mut emitter_clipped = Vec::new();
-            for (v, u) in split.views.iter().zip(us) {
+            for ((v, u), (_, dst)) in split.views.iter().zip(us).zip(paths.iter()) {
                 let e = base * 2f64.powf(*u);
                 let codes = encode(&v.image, &job.response, e);
-                let path = tmp.join(dir).join(format!("{:03}_0001.{ext}", v.index));
+                let path = tmp.join(dst);
+                if let Some(d) = path.parent() {
+                    std::fs::create_dir_all(d)
+                        .with_context(|| format!("{}: cannot create", d.display()))?;
+                }
                 write_photo(&path, split.width, split.height, &codes, job)?;
                 let clipped = |p: usize| codes[3 * p..3 * p + 3].contains(&255);
                 let n = v.image.num_pixels();
@@ -299,13 +362,30 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
                 }));
                 exposures.push(e);
             }
-            if job.give_exposure {
-                let cams = tmp.join(&split.name).join("transforms.json");
+            // transforms.json: the photos' new names (nerfstudio) and the exposures (asked).
+            let nerfstudio = ds.layout == Layout::Nerfstudio;
+            if job.give_exposure || nerfstudio {
+                let cams = if nerfstudio {
+                    tmp.join("transforms.json")
+                } else {
+                    tmp.join(&split.name).join("transforms.json")
+                };
                 let text = std::fs::read_to_string(&cams)?;
                 let mut json: Value = serde_json::from_str(&text)?;
                 let frames = json["frames"].as_array_mut().context("frames")?;
-                for (f, e) in frames.iter_mut().zip(&exposures) {
-                    f["exposure"] = serde_json::json!(e / base);
+                for ((f, e), (_, dst)) in frames.iter_mut().zip(&exposures).zip(paths.iter()) {
+                    if job.give_exposure {
+                        f["exposure"] = serde_json::json!(e / base);
+                    }
+                    if nerfstudio {
+                        f["file_path"] = serde_json::json!(dst.to_string_lossy());
+                        if !job.give_exposure
+                            && let Some(o) = f.as_object_mut()
+                        {
+                            // A source's own exposure would read as the twin's.
+                            o.remove("exposure");
+                        }
+                    }
                 }
                 // The linked file is replaced, never written through (the source keeps its own).
                 std::fs::remove_file(&cams)?;

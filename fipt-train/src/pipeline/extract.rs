@@ -124,6 +124,7 @@ pub fn solve_clipped_lamps(
     store: &PixelStore,
     tr: &Trainer,
     emitters: &mut [Emitter],
+    estimate_response: bool,
 ) -> crate::ldr::lights::LightSolve {
     let cal = ctx.ldr.as_ref().expect("LDR photos");
     crate::ldr::lights::solve_clipped(
@@ -140,6 +141,9 @@ pub fn solve_clipped_lamps(
             pixels: ctx.cfg.ldr.solve_pixels,
             light_samples: ctx.cfg.ldr.light_samples,
             seed: ctx.seeds.base(),
+            estimate_response,
+            exposures_estimated: cal.exposure_source
+                == crate::ldr::calibrate::ExposureSource::Estimated,
         },
     )
 }

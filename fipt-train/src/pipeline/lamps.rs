@@ -1,10 +1,12 @@
-//! LDR photos only, before the bake: the HDR radiance of the clipped lamps, filled into the
-//! photos. An LDR photo records a lamp only as its clip level, so L′ and every shading baked
+//! LDR photos only, before the bake: the camera response and the HDR radiance of the clipped
+//! lamps, the photos linearised with the one and filled with the other. An LDR photo records a lamp only as its clip level, so L′ and every shading baked
 //! from it would see the lamps far too dim, and every base colour they light far too bright.
 //! This stage fits a first model on the clipped photos (round 0's fit, without its hop) for its
 //! emission mask and its rough surfaces, extracts the emitters, solves the clipped lamps'
-//! radiance from the unclipped pixels they light (`crate::ldr::lights`), and writes that
-//! radiance into the clipped channels of the lamps' pixels. From there the run is an HDR run
+//! radiance from the unclipped pixels they light (`crate::ldr::lights`; with
+//! `ldr.estimate_response`, together with the response, `crate::ldr::response`, and the photos
+//! are then linearised anew with it), and writes the radiance into the clipped channels of the
+//! lamps' pixels. From there the run is an HDR run
 //! (IRIS re-bakes its shadings with the learned emitter radiance likewise), except that round
 //! 0's emitters are solved once more (`extract::solve_clipped_lamps`): the photos' full lamps now show in the mask,
 //! faces no photo saw included, which the first solve lacked and made up for in brightness.
@@ -62,7 +64,20 @@ pub fn fill_clipped_lamps(ctx: &mut RunContext) -> Result<()> {
             solve
         }
     };
-    fill(ctx, &solve);
+    // The estimated response replaces the sRGB curve: the photos are linearised anew (and
+    // estimated exposures estimated anew) before the lamps are filled.
+    if let Some(fit) = &solve.response {
+        let estimate = ctx.cfg.ldr.estimate_exposure;
+        ctx.ldr = Some(crate::ldr::calibrate::calibrate_with(
+            &mut ctx.ds,
+            &ctx.accel,
+            estimate,
+            fit.response(),
+        ));
+    }
+    if ctx.cfg.ldr.solve_emitters {
+        fill(ctx, &solve);
+    }
     ctx.bake_key = crate::cache::cache_key(&ctx.ds, &ctx.bake_cfg)?;
     ctx.light_solve = Some(solve);
     ctx.times.lamps_s = ctx.lap();
@@ -97,6 +112,7 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
         &store,
         &tr,
         &mut emitters,
+        ctx.cfg.ldr.estimate_response,
     ))
 }
 

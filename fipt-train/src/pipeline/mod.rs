@@ -67,7 +67,7 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
 pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Result<RunReport> {
     let mut ctx = RunContext::load(scene, out, cfg, opts)?;
     // LDR photos: the clipped lamps' HDR radiance, filled into the photos before the bake.
-    if ctx.ldr.is_some() && cfg.ldr.solve_emitters {
+    if ctx.ldr.is_some() && (cfg.ldr.solve_emitters || cfg.ldr.estimate_response) {
         lamps::fill_clipped_lamps(&mut ctx)?;
     }
     let ck = rounds::open_checkpoints(&ctx)?;

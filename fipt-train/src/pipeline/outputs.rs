@@ -275,6 +275,7 @@ pub fn run_report(
                 fitted.light_resolve.clone(),
                 ctx.ds.val.as_ref().filter(|_| renders_done),
                 &ctx.out.join("render").join("val"),
+                ctx.scene,
             )
         }),
     }

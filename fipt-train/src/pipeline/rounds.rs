@@ -355,7 +355,7 @@ impl Rounds {
             ctx.seeds.base(),
         );
         if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
-            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e);
+            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e, false);
             self.ck.put(0, LIGHT_SOLVE, &solve)?;
             self.light_resolve = Some(solve);
         }
