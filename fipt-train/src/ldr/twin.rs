@@ -196,8 +196,17 @@ fn write_photo(path: &Path, w: usize, h: usize, codes: &[u8], job: &TwinJob) -> 
     std::fs::write(path, bytes).with_context(|| format!("{}: cannot write", path.display()))
 }
 
-/// Hard-links (or copies) the tree `from` into `to`, skipping the files `skip` says.
-fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) -> Result<()> {
+/// Folders deeper than this are taken for a loop of links.
+const MAX_DEPTH: usize = 32;
+
+/// Hard-links (or copies) the tree `from` into `to` at `depth`, skipping the files `skip` says.
+fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool, depth: usize) -> Result<()> {
+    if depth > MAX_DEPTH {
+        bail!(
+            "{}: folders nested more than {MAX_DEPTH} deep (a loop of links?)",
+            from.display()
+        );
+    }
     std::fs::create_dir_all(to).with_context(|| format!("{}: cannot create", to.display()))?;
     for e in std::fs::read_dir(from).with_context(|| format!("{}: cannot list", from.display()))? {
         let e = e?;
@@ -212,7 +221,7 @@ fn link_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) -> Result<()>
             .with_context(|| format!("{}: cannot read", src.display()))?
             .is_dir()
         {
-            link_tree(&src, &dst, skip)?;
+            link_tree(&src, &dst, skip, depth + 1)?;
         } else if std::fs::hard_link(&src, &dst).is_err() {
             std::fs::copy(&src, &dst).with_context(|| format!("{}: cannot copy", src.display()))?;
         }
@@ -334,7 +343,7 @@ pub fn make_twin(job: &TwinJob) -> Result<TwinTruth> {
         p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")) && sources.contains(&key(p))
     };
     let truth = crate::output::staged_dir(&job.out, |tmp| {
-        link_tree(&job.scene, tmp, &skip)?;
+        link_tree(&job.scene, tmp, &skip, 0)?;
         let mut splits = Vec::new();
         for ((split, paths), us) in photo_dirs.iter().zip(&stops) {
             let mut exposures = Vec::new();

@@ -50,7 +50,7 @@ pub fn fill_clipped_lamps(ctx: &mut RunContext) -> Result<()> {
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
         .filter(|c: &Cached| c.key == key);
-    let solve = match cached {
+    let mut solve = match cached {
         Some(c) => c.solve,
         None => {
             let solve = solve(ctx)?;
@@ -77,6 +77,12 @@ pub fn fill_clipped_lamps(ctx: &mut RunContext) -> Result<()> {
     }
     if ctx.cfg.ldr.solve_emitters {
         fill(ctx, &solve);
+    } else {
+        // Solved for the response only: the lamps keep their clip level, and say so.
+        for l in &mut solve.lamps {
+            l.solved_clipped = false;
+            l.solved = l.extracted;
+        }
     }
     ctx.bake_key = crate::cache::cache_key(&ctx.ds, &ctx.bake_cfg)?;
     ctx.light_solve = Some(solve);
