@@ -328,7 +328,7 @@ fn first_views(split: &Split, n: usize, name: &str) -> Split {
 
 /// Reads a `transforms.json` (either layout, or `render --cameras`), its numbers checked
 /// against their ranges (`crate::ranges`).
-fn parse_transforms(path: &Path) -> Result<Value> {
+pub fn parse_transforms(path: &Path) -> Result<Value> {
     let text = read_text(path)?;
     let v = serde_json::from_str(&text)
         .map_err(|e| FileError::new(path, format!("malformed JSON: {e}")))?;
@@ -379,7 +379,8 @@ fn json_matrix4(v: &Value, path: &Path, k: usize) -> Result<[[f64; 4]; 4]> {
     Ok(m)
 }
 
-fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
+/// The `frames` array of a parsed `transforms.json`, or an error naming the file.
+pub fn frames_of<'a>(v: &'a Value, path: &Path) -> Result<&'a Vec<Value>> {
     let frames = v
         .get("frames")
         .and_then(Value::as_array)

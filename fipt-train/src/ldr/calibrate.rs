@@ -186,9 +186,9 @@ fn given(split: &Split, scale: f64) -> Option<Vec<f64>> {
         .collect()
 }
 
-/// Takes the sRGB response, estimates the exposures of an LDR dataset and relinearises its photos with
-/// them (`View::image`). `estimate`: estimate exposures that the capture does not give (else
-/// every frame has exposure 1).
+/// Takes the sRGB response, estimates the exposures of an LDR dataset and relinearises its
+/// photos with them (`View::image`). `estimate`: estimate exposures that the capture does not
+/// give (else every frame has exposure 1).
 pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration {
     calibrate_with(ds, accel, estimate, Response::srgb())
 }

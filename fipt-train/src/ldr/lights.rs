@@ -67,10 +67,10 @@ pub struct SolveConfig {
     pub exposures_estimated: bool,
 }
 
-#[derive(Clone)]
 /// One pixel of the solve: its photo codes and their linear values g(code) under the response
 /// the photos are linearised with, its view's exposure, D_k per clipped lamp, and the L′
 /// samples of E (zero where a direction ends on a clipped lamp or leaves the scene).
+#[derive(Clone)]
 pub struct SolvePixel {
     pub code: [f64; 3],
     pub value: [f64; 3],
@@ -258,13 +258,7 @@ pub fn solve_clipped(
             report.response = Some(fit);
             le
         } else {
-            let le = [0, 1, 2].map(|c| {
-                let t = super::response::ChannelTerms::new(&pixels, &level, c, 1.0, false);
-                alternate(&t, &pixels, n_parts, ALTERNATIONS).0
-            });
-            (0..clipped.len())
-                .map(|k| [le[0][k], le[1][k], le[2][k]])
-                .collect()
+            super::response::solve_radiance(&pixels, n_parts, &level, [1.0; 3], false)
         };
     for (k, &g) in clipped.iter().enumerate() {
         let solved = solved[k].map(|x| x as f32);
@@ -393,12 +387,7 @@ pub fn alternate(
     let (obs, rest, level) = (&t.obs, &t.rest, &t.level);
     let mut le: Vec<f64> = level.clone();
     let mut kd = vec![0.5f64; n_parts];
-    let shading = |j: usize, le: &[f64]| {
-        rest[j]
-            + (0..nk)
-                .map(|k| le[k] * pixels[j].direct[k] as f64)
-                .sum::<f64>()
-    };
+    let shading = |j: usize, le: &[f64]| t.shading(j, &pixels[j], le);
     // Relative residuals, with Cauchy weights (scale 10 %) against outliers: highlights,
     // textures within a part.
     let mut w = vec![0.0f64; obs.len()];

@@ -75,14 +75,15 @@ impl ChannelTerms {
         gamma: f64,
         exposures_estimated: bool,
     ) -> Self {
-        let e_of = |e: f64| {
+        // What moves with γ where the exposures were estimated: the exposures and clip levels.
+        let moved = |x: f64| {
             if exposures_estimated {
-                e.powf(gamma)
+                x.powf(gamma)
             } else {
-                e
+                x
             }
         };
-        let exposure: Vec<f64> = pixels.iter().map(|p| e_of(p.exposure)).collect();
+        let exposure: Vec<f64> = pixels.iter().map(|p| moved(p.exposure)).collect();
         Self {
             obs: pixels
                 .iter()
@@ -100,19 +101,37 @@ impl ChannelTerms {
                         / n
                 })
                 .collect(),
-            level: level
-                .iter()
-                .map(|t| {
-                    if exposures_estimated {
-                        t[c].powf(gamma)
-                    } else {
-                        t[c]
-                    }
-                })
-                .collect(),
+            level: level.iter().map(|t| moved(t[c])).collect(),
             exposure,
         }
     }
+
+    /// Pixel `j`'s shading, E + Σ_k Le_k·D_k, for the radiance `le` of this channel.
+    pub fn shading(&self, j: usize, px: &SolvePixel, le: &[f64]) -> f64 {
+        self.rest[j]
+            + le.iter()
+                .zip(&px.direct)
+                .map(|(l, &d)| l * d as f64)
+                .sum::<f64>()
+    }
+}
+
+/// Le_k per clipped lamp, each channel `c` solved with exponent `gamma[c]` (`ALTERNATIONS`
+/// rounds).
+pub fn solve_radiance(
+    pixels: &[SolvePixel],
+    n_parts: usize,
+    level: &[[f64; 3]],
+    gamma: [f64; 3],
+    exposures_estimated: bool,
+) -> Vec<[f64; 3]> {
+    let le = [0, 1, 2].map(|c| {
+        let t = ChannelTerms::new(pixels, level, c, gamma[c], exposures_estimated);
+        alternate(&t, pixels, n_parts, ALTERNATIONS).0
+    });
+    (0..level.len())
+        .map(|k| [le[0][k], le[1][k], le[2][k]])
+        .collect()
 }
 
 /// The mean Cauchy cost, in code values, of the solve `(le, kd)` on channel `c`.
@@ -128,12 +147,7 @@ fn code_cost(
         .iter()
         .enumerate()
         .map(|(j, p)| {
-            let s = t.rest[j]
-                + le.iter()
-                    .zip(&p.direct)
-                    .map(|(l, &d)| l * d as f64)
-                    .sum::<f64>();
-            let x = (kd[p.part] * s * t.exposure[j]).clamp(0.0, 1.0);
+            let x = (kd[p.part] * t.shading(j, p, le) * t.exposure[j]).clamp(0.0, 1.0);
             let r = p.code[c] - linear_to_srgb(x.powf(1.0 / gamma));
             (1.0 + (r / CODE_SCALE).powi(2)).ln()
         })
@@ -189,10 +203,6 @@ pub fn estimate(
         let fc: Vec<f64> = fine.par_iter().map(|&x| cost(c, x)).collect();
         best(&fine, &fc).exp2()
     });
-    let le = [0, 1, 2].map(|c| {
-        let t = ChannelTerms::new(pixels, level, c, gamma[c], exposures_estimated);
-        alternate(&t, pixels, n_parts, ALTERNATIONS).0
-    });
     ResponseFit {
         gamma,
         curve: coarse
@@ -200,9 +210,7 @@ pub fn estimate(
             .zip(curve_cost)
             .map(|(lg, k)| (lg.exp2(), k))
             .collect(),
-        radiance: (0..level.len())
-            .map(|k| [le[0][k], le[1][k], le[2][k]])
-            .collect(),
+        radiance: solve_radiance(pixels, n_parts, level, gamma, exposures_estimated),
     }
 }
 
@@ -212,12 +220,12 @@ mod tests {
     use fipt_core::rng::Rng;
     use fipt_core::scene::ldr::srgb_to_linear;
 
-    /// Pixels of a made-up scene photographed through g = srgb⁻¹^γ: 6 parts, 2 lamps, direct
-    /// terms and L′ samples drawn at random, codes quantised to 8 bits. L′ holds what the
-    /// photos linearised with γ = 1 give: the true radiance^(1/γ).
     /// The pixels, the part count, the lamps' clip levels and their true radiance.
     type Scene = (Vec<SolvePixel>, usize, Vec<[f64; 3]>, Vec<[f64; 3]>);
 
+    /// Pixels of a made-up scene photographed through g = srgb⁻¹^γ: 6 parts, 2 lamps, direct
+    /// terms and L′ samples drawn at random, codes quantised to 8 bits. L′ holds what the
+    /// photos linearised with γ = 1 give: the true radiance^(1/γ).
     fn scene(gamma: [f64; 3], n: usize) -> Scene {
         let mut rng = Rng::new(3, 0);
         let kd: Vec<[f64; 3]> = (0..6)

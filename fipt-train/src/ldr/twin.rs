@@ -256,12 +256,8 @@ fn photo_paths(ds: &Dataset, scene: &Path, ext: &str) -> Result<Vec<Vec<(PathBuf
         Layout::FiptReal => vec![fipt(&ds.train, PathBuf::from("Image"))],
         Layout::Nerfstudio => {
             let tpath = scene.join("transforms.json");
-            let json: Value = serde_json::from_str(
-                &std::fs::read_to_string(&tpath)
-                    .with_context(|| format!("{}: cannot read", tpath.display()))?,
-            )
-            .with_context(|| format!("{}: malformed", tpath.display()))?;
-            let frames = json["frames"].as_array().context("frames")?;
+            let json = fipt_core::scene::dataset::parse_transforms(&tpath)?;
+            let frames = fipt_core::scene::dataset::frames_of(&json, &tpath)?;
             let paths = ds
                 .train
                 .views

@@ -1,15 +1,16 @@
 //! LDR photos only, before the bake: the camera response and the HDR radiance of the clipped
-//! lamps, the photos linearised with the one and filled with the other. An LDR photo records a lamp only as its clip level, so L′ and every shading baked
-//! from it would see the lamps far too dim, and every base colour they light far too bright.
-//! This stage fits a first model on the clipped photos (round 0's fit, without its hop) for its
-//! emission mask and its rough surfaces, extracts the emitters, solves the clipped lamps'
-//! radiance from the unclipped pixels they light (`crate::ldr::lights`; with
-//! `ldr.estimate_response`, together with the response, `crate::ldr::response`, and the photos
-//! are then linearised anew with it), and writes the radiance into the clipped channels of the
-//! lamps' pixels. From there the run is an HDR run
-//! (IRIS re-bakes its shadings with the learned emitter radiance likewise), except that round
-//! 0's emitters are solved once more (`extract::solve_clipped_lamps`): the photos' full lamps now show in the mask,
-//! faces no photo saw included, which the first solve lacked and made up for in brightness.
+//! lamps, the photos linearised with the one and filled with the other. An LDR photo records a
+//! lamp only as its clip level, so L′ and every shading baked from it would see the lamps far
+//! too dim, and every base colour they light far too bright. This stage fits a first model on
+//! the clipped photos (round 0's fit, without its hop) for its emission mask and its rough
+//! surfaces, extracts the emitters, solves the clipped lamps' radiance from the unclipped
+//! pixels they light (`crate::ldr::lights`; with `ldr.estimate_response`, together with the
+//! response, `crate::ldr::response`, and the photos are then linearised anew with it), and
+//! writes the radiance into the clipped channels of the lamps' pixels. From there the run is an
+//! HDR run (IRIS re-bakes its shadings with the learned emitter radiance likewise), except that
+//! round 0's emitters are solved once more (`extract::solve_clipped_lamps`): the photos' full
+//! lamps now show in the mask, faces no photo saw included, which the first solve lacked and
+//! made up for in brightness.
 //!
 //! The solve is cached in `OUT/cache/lamps.json`, keyed by the clipped photos' bake key, the
 //! config and the program, so a resumed run skips it.

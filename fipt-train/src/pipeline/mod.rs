@@ -66,7 +66,8 @@ pub fn run(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunRep
 /// call with the same scene, config and program continues from there with the same results.
 pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Result<RunReport> {
     let mut ctx = RunContext::load(scene, out, cfg, opts)?;
-    // LDR photos: the clipped lamps' HDR radiance, filled into the photos before the bake.
+    // LDR photos: the clipped lamps' HDR radiance (and, asked, the response), applied to the
+    // photos before the bake.
     if ctx.ldr.is_some() && (cfg.ldr.solve_emitters || cfg.ldr.estimate_response) {
         lamps::fill_clipped_lamps(&mut ctx)?;
     }
