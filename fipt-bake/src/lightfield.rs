@@ -12,13 +12,13 @@
 //! keeps L_d from bleeding across room edges and around emitters (`docs/departures/
 //! lightfield.md`).
 //!
-//! A second refinement: sampling holes are filled. At the reference's 256³ the voxels are about
-//! as large as a pixel's footprint, so on a low-resolution capture many voxels of photographed
-//! surfaces hold no pixel centre and read 0. On fipt-room (48 views of 160×120) 10.3 % of the
-//! surface area lies in such empty voxels (3.0 % at 64³, where only truly unseen surfaces remain),
-//! which darkens every shading by roughly that share. Each empty voxel next to observed ones
-//! takes, side by side, the pooled mean of its 26 neighbours' records for that side; one ring
-//! leaves 4.0 % empty. Observed voxels are never changed.
+//! A second refinement: holes are filled. At the reference's 256³ the voxels are about as large
+//! as a pixel's footprint, so on a low-resolution capture many voxels of photographed surfaces
+//! hold no pixel centre and read 0, and surfaces no photo saw read 0 too; either darkens every
+//! shading that sees them. A ring of filling gives each empty voxel next to stored ones, side by
+//! side, the pooled mean of its 26 neighbours' records for that side; `HoleFill` sets how many
+//! rings, and the bake confines them to the voxels the mesh passes through, so they spread
+//! along the surfaces and never into the air. Observed voxels are never changed.
 //!
 //! Storage is sparse: a coarse table of 8³-voxel bricks, with bricks allocated only where some
 //! voxel is occupied, so a query is two array reads.
@@ -60,6 +60,25 @@ impl<'a> ByteReader<'a> {
             self.take(4)?.try_into().expect("4 bytes"),
         ))
     }
+}
+
+/// How L′'s holes are filled: up to `rings` rings (each fills the empty voxels next to the
+/// stored ones, so a hole up to `rings` voxels from an observed voxel reads the pooled mean of
+/// the records around it; 0 leaves every hole at 0), into the voxels the `surface` triangles
+/// pass through where given (else into any voxel). The rings stop early once one fills
+/// nothing.
+#[derive(Clone, Copy, Debug)]
+pub struct HoleFill<'a> {
+    pub rings: usize,
+    pub surface: Option<&'a [[Vec3; 3]]>,
+}
+
+impl HoleFill<'_> {
+    /// One ring into any voxel.
+    pub const ONE_RING: HoleFill<'static> = HoleFill {
+        rings: 1,
+        surface: None,
+    };
 }
 
 /// L′ on a `res³` grid over a `SceneBox`.
@@ -179,10 +198,21 @@ impl LightField {
         &mut self.bricks[self.top[t] as usize][l]
     }
 
-    /// Builds L′ from samples (first-hit position, normal facing the camera, HDR value).
+    /// Builds L′ from samples (first-hit position, normal facing the camera, HDR value), its
+    /// holes filled with one ring.
     pub fn build(
         scene_box: SceneBox,
         res: usize,
+        samples: impl IntoIterator<Item = (Vec3, Vec3, [f32; 3])>,
+    ) -> Self {
+        Self::build_filled(scene_box, res, HoleFill::ONE_RING, samples)
+    }
+
+    /// `build` with the hole filling `fill` (module doc).
+    pub fn build_filled(
+        scene_box: SceneBox,
+        res: usize,
+        fill: HoleFill<'_>,
         samples: impl IntoIterator<Item = (Vec3, Vec3, [f32; 3])>,
     ) -> Self {
         assert!(
@@ -214,7 +244,12 @@ impl LightField {
             })
             .collect();
         lf.observed = lf.sides.len();
-        lf.fill_holes();
+        let surface = fill.surface.map(|t| lf.surface_voxels(t));
+        for _ in 0..fill.rings {
+            if lf.fill_holes(surface.as_ref()) == 0 {
+                break;
+            }
+        }
         lf
     }
 
@@ -249,10 +284,35 @@ impl LightField {
         (k != EMPTY).then_some(k as usize)
     }
 
-    /// One ring of hole filling (module doc): every empty voxel among the 26 neighbours of an
-    /// observed voxel gets, per side, the pooled mean of the neighbours' records of that side
-    /// (count-weighted, so the pixels count once each).
-    fn fill_holes(&mut self) {
+    /// Linear index of voxel `v`.
+    #[inline]
+    fn linear(&self, v: [usize; 3]) -> u64 {
+        (v[0] + self.res * (v[1] + self.res * v[2])) as u64
+    }
+
+    /// The voxels `triangles` pass through: each triangle's points on a barycentric grid
+    /// whose steps are under half a voxel.
+    fn surface_voxels(&self, triangles: &[[Vec3; 3]]) -> std::collections::HashSet<u64> {
+        let h = (self.scene_box.max - self.scene_box.min) / self.res as f32;
+        let mut set = std::collections::HashSet::new();
+        for &[a, b, c] in triangles {
+            let longest = (b - a).length().max((c - a).length()).max((c - b).length());
+            let n = ((longest / (0.5 * h)).ceil() as usize).clamp(1, 1 << 14);
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    let p = a + (b - a) * (i as f32 / n as f32) + (c - a) * (j as f32 / n as f32);
+                    set.insert(self.linear(self.voxel(p)));
+                }
+            }
+        }
+        set
+    }
+
+    /// One ring of hole filling (module doc): every empty voxel among the 26 neighbours of a
+    /// stored voxel (one the surface passes through, where `surface` is given) gets, per side,
+    /// the pooled mean of the neighbours' records of that side (count-weighted, so the pixels
+    /// count once each). Returns the voxels filled.
+    fn fill_holes(&mut self, surface: Option<&std::collections::HashSet<u64>>) -> usize {
         let coords = self.voxel_coords();
         let res = self.res as i64;
         let mut acc: std::collections::HashMap<[usize; 3], [[f64; 4]; 6]> = Default::default();
@@ -266,7 +326,9 @@ impl LightField {
                             continue;
                         }
                         let n = n.map(|x| x as usize);
-                        if self.index_of(n).is_some() {
+                        if self.index_of(n).is_some()
+                            || surface.is_some_and(|s| !s.contains(&self.linear(n)))
+                        {
                             continue;
                         }
                         let a = acc.entry(n).or_insert([[0.0; 4]; 6]);
@@ -283,6 +345,7 @@ impl LightField {
         // Sorted, so the layout does not depend on hashing.
         let mut filled: Vec<_> = acc.into_iter().collect();
         filled.sort_unstable_by_key(|(v, _)| [v[2], v[1], v[0]]);
+        let count = filled.len();
         for (v, a) in filled {
             let k = self.sides.len() as u32;
             *self.cell_mut(v) = k;
@@ -291,6 +354,7 @@ impl LightField {
                 [(r * k) as f32, (g * k) as f32, (b * k) as f32, n as f32]
             }));
         }
+        count
     }
 
     /// The side records of the voxel containing `p`, if occupied.
@@ -601,6 +665,55 @@ mod tests {
         // 26-neighbourhood of each observed voxel, shared cells counted once: 3×3 columns
         // x ∈ 2..=6, y ∈ 0..=1, z ∈ 0..=1 minus the two observed ones.
         assert_eq!(lf.filled(), 5 * 2 * 2 - 2);
+    }
+
+    /// Rings on a surface: a hole several voxels along a photographed floor from the nearest
+    /// observed voxel is filled with the rings needed to reach it, and not with fewer; the
+    /// voxels off the floor stay empty; the rings stop once one fills nothing.
+    #[test]
+    fn rings_fill_along_the_surface_only() {
+        let b = SceneBox { min: 0.0, max: 1.0 };
+        // A floor y = 0.5/16 over x, z in [0, 1]: two triangles; pixels seen at x voxel 2 only.
+        let y = 0.5 / 16.0;
+        let floor = [
+            [
+                Vec3::new(0.0, y, 0.0),
+                Vec3::new(1.0, y, 0.0),
+                Vec3::new(1.0, y, 1.0),
+            ],
+            [
+                Vec3::new(0.0, y, 0.0),
+                Vec3::new(1.0, y, 1.0),
+                Vec3::new(0.0, y, 1.0),
+            ],
+        ];
+        let at = |x: f32, z: f32| Vec3::new((x + 0.5) / 16.0, y, (z + 0.5) / 16.0);
+        let samples: Vec<_> = (0..16)
+            .map(|z| (at(2.0, z as f32), Vec3::Y, [3.0; 3]))
+            .collect();
+        let build = |rings| {
+            LightField::build_filled(
+                b,
+                16,
+                HoleFill {
+                    rings,
+                    surface: Some(&floor),
+                },
+                samples.clone(),
+            )
+        };
+        // Voxel x = 9 is 7 rings away.
+        assert_eq!(build(6).query(at(9.0, 4.0), Vec3::Y), Vec3::ZERO);
+        let lf = build(7);
+        assert_eq!(lf.query(at(9.0, 4.0), Vec3::Y), Vec3::splat(3.0));
+        // Above the floor: nothing filled (unrestricted, one ring fills the voxels above it).
+        let above = Vec3::new(2.5 / 16.0, 1.5 / 16.0, 4.5 / 16.0);
+        assert_eq!(lf.query(above, Vec3::Y), Vec3::ZERO);
+        let loose = LightField::build_filled(b, 16, HoleFill::ONE_RING, samples.clone());
+        assert_eq!(loose.query(above, Vec3::Y), Vec3::splat(3.0));
+        // The whole floor row of voxels is 16 × 16, 16 of them observed.
+        let all = build(64);
+        assert_eq!(all.filled(), 16 * 16 - 16);
     }
 
     /// The batched query is the single one, bit for bit, on 1000 queries (several blocks and

@@ -193,6 +193,7 @@ use Kind::{Config as C, Insert as I, Relight as R, SceneMeta as M, Transforms as
 pub const FIELDS: &[Field] = &[
     f(C, "seed", int(0.0, 18446744073709551615.0), "a u64"),
     f(C, "bake.voxel_res", int(8.0, 4096.0), "L′ grid, a multiple of 8"),
+    f(C, "bake.fill_rings", int(0.0, 64.0), "rings of L′ hole filling"),
     f(C, "bake.samples.diffuse", SAMPLES, "rays per pixel"),
     f(C, "bake.samples.specular[]", SAMPLES, "rays per pixel"),
     f(C, "bake.filter.radius", int(0.0, 32.0), "pixels; 0: no filter"),

@@ -666,6 +666,7 @@ fn validate_bake(b: &BakeConfig) -> Result<()> {
         "bake.voxel_res",
         "must be a multiple of 8 in [8, 4096]",
     )?;
+    check(b.fill_rings <= 64, "bake.fill_rings", "must be in [0, 64]")?;
     check(
         b.samples.diffuse >= 1,
         "bake.samples.diffuse",

@@ -146,6 +146,10 @@ impl Baker<'_> {
 pub struct BakeConfig {
     /// L′ grid resolution per axis (a multiple of 8).
     pub voxel_res: usize,
+    /// The most rings of L′'s hole filling on the mesh's surface (`LightField::build_filled`;
+    /// `docs/departures/lightfield.md`).
+    #[serde(default = "default_fill_rings")]
+    pub fill_rings: usize,
     pub samples: BakeSamples,
     pub filter: crate::filter::FilterConfig,
     /// Random seed (set from the run's seed, not read from config files).
@@ -157,11 +161,19 @@ impl Default for BakeConfig {
     fn default() -> Self {
         Self {
             voxel_res: 256,
+            fill_rings: FILL_RINGS,
             samples: BakeSamples::default(),
             filter: Default::default(),
             seed: 0,
         }
     }
+}
+
+/// The default of `BakeConfig::fill_rings`.
+pub const FILL_RINGS: usize = 32;
+
+fn default_fill_rings() -> usize {
+    FILL_RINGS
 }
 
 /// One training view as the bake sees it.
@@ -173,8 +185,15 @@ pub struct BakeView<'a> {
     pub focal: f32,
 }
 
-/// Builds L′ from the training views' pixel-centre hits and HDR values.
-pub fn build_light_field(views: &[BakeView], res: usize) -> LightField {
+/// Builds L′ from the training views' pixel-centre hits and HDR values, its holes filled with
+/// `rings` rings on the surface of `mesh`.
+pub fn build_light_field(
+    views: &[BakeView],
+    mesh: &fipt_core::scene::Mesh,
+    res: usize,
+    rings: usize,
+) -> LightField {
+    let triangles: Vec<[Vec3; 3]> = (0..mesh.num_triangles()).map(|t| mesh.corners(t)).collect();
     let sb = fipt_core::scene::SceneBox::from_points(views.iter().flat_map(|v| {
         v.hits
             .position
@@ -183,9 +202,13 @@ pub fn build_light_field(views: &[BakeView], res: usize) -> LightField {
             .filter(|(_, t)| **t >= 0)
             .map(|(p, _)| p)
     }));
-    LightField::build(
+    LightField::build_filled(
         sb,
         res,
+        crate::lightfield::HoleFill {
+            rings,
+            surface: Some(&triangles),
+        },
         views.iter().flat_map(|v| {
             (0..v.hits.num_pixels())
                 .filter(|&p| v.hits.tri[p] >= 0)
@@ -478,7 +501,7 @@ pub(crate) mod tests {
             image: &image,
             focal: cam.fx as f32,
         }];
-        let lf = build_light_field(&views, 32);
+        let lf = build_light_field(&views, &room.mesh, 32, 1);
         let cfg = BakeConfig {
             voxel_res: 32,
             samples: BakeSamples {

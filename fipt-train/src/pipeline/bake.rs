@@ -39,7 +39,7 @@ pub fn bake(
 ) -> anyhow::Result<Baked> {
     let hits = cast_split(accel, mesh, train);
     let views = train_views(train, &hits);
-    let light_field = build_light_field(&views, cfg.voxel_res);
+    let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
     // Ctrl-C stops after the current view (`interrupt`).
     let baked = bake_views(accel, &light_field, &views, cfg, &|_| {
@@ -74,7 +74,7 @@ pub fn bake_cached(
     if let Some(shadings) = crate::cache::load_or_discard(&path, key, ds.train.views.len(), w, h)? {
         let hits = cast_split(accel, &ds.mesh, &ds.train);
         let views: Vec<BakeView> = train_views(&ds.train, &hits);
-        let light_field = build_light_field(&views, cfg.voxel_res);
+        let light_field = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings);
         drop(views);
         return Ok((
             Baked {
