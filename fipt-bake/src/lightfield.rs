@@ -245,8 +245,10 @@ impl LightField {
             .collect();
         lf.observed = lf.sides.len();
         let surface = fill.surface.map(|t| lf.surface_voxels(t));
+        let mut ring = lf.voxel_coords();
         for _ in 0..fill.rings {
-            if lf.fill_holes(surface.as_ref()) == 0 {
+            ring = lf.fill_holes(surface.as_ref(), &ring);
+            if ring.is_empty() {
                 break;
             }
         }
@@ -308,53 +310,65 @@ impl LightField {
         set
     }
 
-    /// One ring of hole filling (module doc): every empty voxel among the 26 neighbours of a
-    /// stored voxel (one the surface passes through, where `surface` is given) gets, per side,
-    /// the pooled mean of the neighbours' records of that side (count-weighted, so the pixels
-    /// count once each). Returns the voxels filled.
-    fn fill_holes(&mut self, surface: Option<&std::collections::HashSet<u64>>) -> usize {
-        let coords = self.voxel_coords();
+    /// The 26 neighbours of voxel `v` inside the grid.
+    fn neighbours(&self, v: [usize; 3]) -> impl Iterator<Item = [usize; 3]> {
         let res = self.res as i64;
-        let mut acc: std::collections::HashMap<[usize; 3], [[f64; 4]; 6]> = Default::default();
-        for (k, c) in coords.iter().enumerate() {
-            let rec = self.sides[k];
-            for dz in -1i64..=1 {
-                for dy in -1i64..=1 {
-                    for dx in -1i64..=1 {
-                        let n = [c[0] as i64 + dx, c[1] as i64 + dy, c[2] as i64 + dz];
-                        if n.iter().any(|&x| x < 0 || x >= res) {
-                            continue;
+        (-1i64..=1)
+            .flat_map(|dz| (-1i64..=1).flat_map(move |dy| (-1i64..=1).map(move |dx| [dx, dy, dz])))
+            .filter(|d| *d != [0, 0, 0])
+            .filter_map(move |d| {
+                let n = [0, 1, 2].map(|i| v[i] as i64 + d[i]);
+                n.iter()
+                    .all(|&x| (0..res).contains(&x))
+                    .then(|| n.map(|x| x as usize))
+            })
+    }
+
+    /// One ring of hole filling (module doc): every empty voxel among the 26 neighbours of
+    /// the voxels `last` (those the previous ring stored, or the observed ones; an empty
+    /// neighbour of an older voxel was filled by an earlier ring), and one the surface passes
+    /// through where `surface` is given, gets per side the pooled mean of its stored
+    /// neighbours' records of that side (count-weighted, so the pixels count once each).
+    /// Returns the voxels filled.
+    fn fill_holes(
+        &mut self,
+        surface: Option<&std::collections::HashSet<u64>>,
+        last: &[[usize; 3]],
+    ) -> Vec<[usize; 3]> {
+        let mut holes: Vec<[usize; 3]> = last
+            .iter()
+            .flat_map(|&c| self.neighbours(c))
+            .filter(|&n| {
+                self.index_of(n).is_none() && surface.is_none_or(|s| s.contains(&self.linear(n)))
+            })
+            .collect();
+        // Sorted, so the layout does not depend on the order of `last`.
+        holes.sort_unstable_by_key(|v| [v[2], v[1], v[0]]);
+        holes.dedup();
+        let records: Vec<[[f32; 4]; 6]> = holes
+            .iter()
+            .map(|&v| {
+                let mut a = [[0.0f64; 4]; 6];
+                for k in self.neighbours(v).filter_map(|n| self.index_of(n)) {
+                    for (dst, r) in a.iter_mut().zip(self.sides[k].iter()) {
+                        for i in 0..3 {
+                            dst[i] += (r[i] * r[3]) as f64;
                         }
-                        let n = n.map(|x| x as usize);
-                        if self.index_of(n).is_some()
-                            || surface.is_some_and(|s| !s.contains(&self.linear(n)))
-                        {
-                            continue;
-                        }
-                        let a = acc.entry(n).or_insert([[0.0; 4]; 6]);
-                        for (dst, r) in a.iter_mut().zip(rec.iter()) {
-                            for i in 0..3 {
-                                dst[i] += (r[i] * r[3]) as f64;
-                            }
-                            dst[3] += r[3] as f64;
-                        }
+                        dst[3] += r[3] as f64;
                     }
                 }
-            }
-        }
-        // Sorted, so the layout does not depend on hashing.
-        let mut filled: Vec<_> = acc.into_iter().collect();
-        filled.sort_unstable_by_key(|(v, _)| [v[2], v[1], v[0]]);
-        let count = filled.len();
-        for (v, a) in filled {
+                a.map(|[r, g, b, n]| {
+                    let k = if n > 0.0 { 1.0 / n } else { 0.0 };
+                    [(r * k) as f32, (g * k) as f32, (b * k) as f32, n as f32]
+                })
+            })
+            .collect();
+        for (&v, rec) in holes.iter().zip(records) {
             let k = self.sides.len() as u32;
             *self.cell_mut(v) = k;
-            self.sides.push(a.map(|[r, g, b, n]| {
-                let k = if n > 0.0 { 1.0 / n } else { 0.0 };
-                [(r * k) as f32, (g * k) as f32, (b * k) as f32, n as f32]
-            }));
+            self.sides.push(rec);
         }
-        count
+        holes
     }
 
     /// The side records of the voxel containing `p`, if occupied.
@@ -454,7 +468,7 @@ impl LightField {
         out.extend_from_slice(&self.scene_box.min.to_le_bytes());
         out.extend_from_slice(&self.scene_box.max.to_le_bytes());
         for (rec, c) in self.sides.iter().zip(&coords) {
-            let idx = (c[0] + self.res * (c[1] + self.res * c[2])) as u32;
+            let idx = self.linear(*c) as u32;
             out.extend_from_slice(&idx.to_le_bytes());
             let mask = rec
                 .iter()
