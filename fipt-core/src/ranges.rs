@@ -250,6 +250,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "refine.lambda_d", WEIGHT, "a loss weight (or null)"),
     f(C, "refine.lambda_d_warmup", UNIT, "a share of the steps (or null)"),
     f(C, "refine.lambda_m", WEIGHT, "a loss weight (or null)"),
+    f(C, "refine.emitter_margin", int(0.0, 8.0), "pixels around an emitter's"),
     f(C, "refine.paths.samples.diffuse", SAMPLES, "paths per pixel"),
     f(C, "refine.paths.samples.specular[]", SAMPLES, "paths per pixel"),
     f(C, "refine.paths.max_depth", int(2.0, 64.0), "segments"),

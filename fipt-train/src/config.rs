@@ -49,6 +49,10 @@ pub struct RefineSection {
     /// Weight of Eq. 17's m term in the fits on refined shadings (None: the same λ_d as its σ
     /// term, the reference).
     pub lambda_m: Option<f32>,
+    /// The fits on refined shadings leave out the pixels within this many pixels of one that
+    /// shows an extracted emitter (0, the default and the reference's: none);
+    /// `pipeline::pixels::near_emitters`.
+    pub emitter_margin: usize,
     /// The path-traced estimators.
     pub paths: RefineConfig,
 }
@@ -66,6 +70,8 @@ impl Default for RefineSection {
             lambda_d: Some(1e-4),
             lambda_d_warmup: None,
             lambda_m: None,
+            // The reference's: every pixel (`docs/suite.md` measures 1).
+            emitter_margin: 0,
             paths: RefineConfig {
                 samples: fipt_bake::integrators::bake::BakeSamples {
                     diffuse: 64,
@@ -864,6 +870,11 @@ fn validate_refine(refine: &RefineSection, train_lambda_d: f32) -> Result<()> {
             "needs a refined λ_d > 0 (refine.lambda_d, else train.lambda_d)",
         )?;
     }
+    check(
+        refine.emitter_margin <= 8,
+        "refine.emitter_margin",
+        "must be in [0, 8]",
+    )?;
     Ok(())
 }
 

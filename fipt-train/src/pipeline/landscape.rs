@@ -58,13 +58,16 @@ pub struct FittedLandscape {
 }
 
 /// The landscape of every part of a scene with ground truth (`scene_meta.json` and the
-/// BaseColor/Roughness/Metallic maps); empty without. `shadings` are per train view.
+/// BaseColor/Roughness/Metallic maps); empty without. `shadings` are per train view. The
+/// pixels within `margin` pixels of a true emitter's (the Emit maps) are left out, as
+/// `refine.emitter_margin` leaves them out of a fit.
 pub fn landscape(
     ds: &Dataset,
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
     lambda_d: f32,
     fitted: Option<&[ViewMaps]>,
+    margin: usize,
 ) -> Vec<PartLandscape> {
     let Some(meta) = ds.meta.as_ref() else {
         return Vec::new();
@@ -113,8 +116,12 @@ pub fn landscape(
             continue;
         };
         let emit = v.map(MapKind::Emit);
+        let lit: Vec<bool> = (0..h.num_pixels())
+            .map(|p| emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0))
+            .collect();
+        let near = super::pixels::ring_around(&lit, h.width, margin);
         for p in 0..h.num_pixels() {
-            if h.tri[p] < 0 || emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0) {
+            if h.tri[p] < 0 || lit[p] || near[p] {
                 continue;
             }
             let Some(part) = meta

@@ -16,7 +16,8 @@ use std::path::Path;
 /// round cached in `out/cache`, and with `oracle` of the oracle shadings; written to
 /// `out/landscape.json` and returned as (shadings name, table). With `fitted`, every table also
 /// sweeps σ at the base colour and metallic of the model `run` left in `out/maps/train`, and
-/// gives that model's own data term.
+/// gives that model's own data term. Every table leaves out the pixels within
+/// `refine.emitter_margin` of a true emitter's.
 pub fn landscapes(
     scene: &Path,
     out: &Path,
@@ -42,9 +43,10 @@ pub fn landscapes(
     // Each table's prior is the λ_d of the fit on those shadings (round 0's for the baked and
     // the oracle shadings, round r's for `refine{r}.bin`).
     let lambda = |r: usize| cfg.train_for_round(r).lambda_d;
+    let margin = cfg.refine.emitter_margin;
     let mut tables = vec![(
         "baked".to_string(),
-        landscape(ds, &baked.hits, &baked.shadings, lambda(0), maps),
+        landscape(ds, &baked.hits, &baked.shadings, lambda(0), maps, margin),
     )];
     let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
     for r in 1.. {
@@ -54,14 +56,14 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            landscape(ds, &baked.hits, &s, lambda(r), maps),
+            landscape(ds, &baked.hits, &s, lambda(r), maps, margin),
         ));
     }
     if oracle {
         let s = refine::oracle_cached(&ctx, &baked)?;
         tables.push((
             "oracle".to_string(),
-            landscape(ds, &baked.hits, &s, lambda(0), maps),
+            landscape(ds, &baked.hits, &s, lambda(0), maps, margin),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables

@@ -2,7 +2,8 @@
 //! of unit-cube and world positions, packed shadings, photo values and segment ids; batches are
 //! gathered from it by index.
 //!
-//! Owns: the store, the segmentation map choice, the pixel footprint. Must not touch: training.
+//! Owns: the store, the segmentation map choice, the pixel footprint, the pixels next to the
+//! emitters. Must not touch: training.
 
 use super::bake::Baked;
 use fipt_bake::ViewHits;
@@ -82,6 +83,41 @@ impl PixelStore {
         }
     }
 
+    /// Keeps the entries whose (view, pixel) `keep` accepts, in order; returns how many went.
+    pub fn retain(&mut self, keep: impl Fn(u32, u32) -> bool) -> usize {
+        let d = ShadingLayout::DIM;
+        let b = &mut self.pixels;
+        let caps = !b.cap.is_empty();
+        let mut n = 0;
+        for i in 0..self.origin.len() {
+            let (k, p) = self.origin[i];
+            if !keep(k, p) {
+                continue;
+            }
+            self.origin[n] = (k, p);
+            b.x_unit[n] = b.x_unit[i];
+            b.x_world[n] = b.x_world[i];
+            b.shadings.copy_within(i * d..(i + 1) * d, n * d);
+            b.gt.copy_within(3 * i..3 * i + 3, 3 * n);
+            b.seg[n] = b.seg[i];
+            if caps {
+                b.cap.copy_within(3 * i..3 * i + 3, 3 * n);
+            }
+            n += 1;
+        }
+        let gone = self.origin.len() - n;
+        self.origin.truncate(n);
+        b.x_unit.truncate(n);
+        b.x_world.truncate(n);
+        b.shadings.truncate(n * d);
+        b.gt.truncate(3 * n);
+        b.seg.truncate(n);
+        if caps {
+            b.cap.truncate(3 * n);
+        }
+        gone
+    }
+
     /// The batch of the given entries.
     pub fn batch(&self, idx: &[u32]) -> Batch {
         let b = &self.pixels;
@@ -109,6 +145,40 @@ impl PixelStore {
     }
 }
 
+/// Per view, the pixels within `margin` pixels (the 8-neighbourhood, repeated) of a pixel whose
+/// centre ray hit an emitter triangle (`is_emitter`), not on one themselves. Their footprint
+/// takes in part of the emitter, so they are far brighter than the surface their centre hits:
+/// a lobe of that surface would have to explain them.
+pub fn near_emitters(
+    hits: &[ViewHits],
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+) -> Vec<Vec<bool>> {
+    hits.iter()
+        .map(|h| {
+            let on: Vec<bool> = h.tri.iter().map(|&t| t >= 0 && is_emitter(t)).collect();
+            ring_around(&on, h.width, margin)
+        })
+        .collect()
+}
+
+/// The pixels of a `width`-wide image within `margin` pixels (Chebyshev distance) of one that
+/// is `on`, not `on` themselves.
+pub fn ring_around(on: &[bool], width: usize, margin: usize) -> Vec<bool> {
+    let height = on.len() / width.max(1);
+    let mut near = vec![false; on.len()];
+    let m = margin as isize;
+    for (p, _) in on.iter().enumerate().filter(|(_, e)| **e) {
+        let (x, y) = ((p % width) as isize, (p / width) as isize);
+        for yy in (y - m).max(0)..=(y + m).min(height as isize - 1) {
+            for xx in (x - m).max(0)..=(x + m).min(width as isize - 1) {
+                near[yy as usize * width + xx as usize] = true;
+            }
+        }
+    }
+    near.iter().zip(on).map(|(n, e)| *n && !e).collect()
+}
+
 /// The median pixel footprint of the training views in unit-cube units: over every hit, the
 /// hit distance times the angle one pixel subtends (1/f_x), divided by the scene box's side.
 pub fn pixel_footprint(train: &Split, hits: &[ViewHits], sb: &SceneBox) -> f64 {
@@ -130,4 +200,92 @@ pub fn pixel_footprint(train: &Split, hits: &[ViewHits], sb: &SceneBox) -> f64 {
     let mid = f.len() / 2;
     let (_, m, _) = f.select_nth_unstable_by(mid, f32::total_cmp);
     *m as f64 / (sb.max - sb.min) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// A view of `w`×`h` pixels whose centre rays hit the triangles `tri` (−1: a miss).
+    fn view(w: usize, h: usize, tri: Vec<i32>) -> ViewHits {
+        let n = w * h;
+        ViewHits {
+            width: w,
+            height: h,
+            origin: Vec3::ZERO,
+            direction: vec![Vec3::Z; n],
+            t: vec![1.0; n],
+            tri,
+            position: vec![Vec3::ZERO; n],
+            normal: vec![Vec3::Z; n],
+        }
+    }
+
+    #[test]
+    fn near_emitters_is_the_ring_around_the_emitter_pixels() {
+        // 7×5 pixels of triangle 1; triangle 9 (the emitter) at (3, 2) and at the corner (0, 0).
+        let (w, h) = (7, 5);
+        let mut tri = vec![1; w * h];
+        tri[2 * w + 3] = 9;
+        tri[0] = 9;
+        tri[4 * w + 6] = -1;
+        let v = vec![view(w, h, tri.clone()), view(w, h, vec![1; w * h])];
+        let near = |m| near_emitters(&v, |t| t == 9, m);
+        let ring = |m: usize| -> Vec<bool> {
+            (0..w * h)
+                .map(|p| {
+                    let (x, y) = ((p % w) as isize, (p / w) as isize);
+                    let cheb = |cx: isize, cy: isize| (x - cx).abs().max((y - cy).abs());
+                    let d = cheb(3, 2).min(cheb(0, 0));
+                    tri[p] != 9 && d <= m as isize
+                })
+                .collect()
+        };
+        for m in 0..4 {
+            let n = near(m);
+            assert_eq!(n[0], ring(m), "margin {m}");
+            assert!(
+                n[1].iter().all(|b| !b),
+                "a view without emitters loses nothing"
+            );
+        }
+        // The counts: 8 around the inner pixel and 3 at the corner for one pixel of margin.
+        assert_eq!(near(1)[0].iter().filter(|b| **b).count(), 8 + 3);
+        assert!(near(0)[0].iter().all(|b| !b));
+    }
+
+    #[test]
+    fn retain_keeps_the_chosen_entries_whole_and_in_order() {
+        let d = ShadingLayout::DIM;
+        let n = 10;
+        let mut b = Batch::default();
+        for i in 0..n {
+            let f = i as f32;
+            b.x_unit.push([f, f + 0.1, f + 0.2]);
+            b.x_world.push([-f, 2.0 * f, 3.0 * f]);
+            b.shadings.extend((0..d).map(|j| f * 100.0 + j as f32));
+            b.gt.extend([f, f * 2.0, f * 3.0]);
+            b.seg.push(i as i32 % 3);
+            b.cap.extend([f, CAP_NONE, f + 0.5]);
+        }
+        let origin: Vec<(u32, u32)> = (0..n as u32).map(|i| (i % 2, i)).collect();
+        let mut store = PixelStore { pixels: b, origin };
+        let keep = |k: u32, p: u32| k == 0 || p == 7;
+        let kept: Vec<u32> = (0..n as u32).filter(|&i| keep(i % 2, i)).collect();
+        let want = store.batch(&kept);
+        assert_eq!(store.retain(keep), n - kept.len());
+        assert_eq!(store.len(), kept.len());
+        assert_eq!(
+            store.origin,
+            kept.iter().map(|&i| (i % 2, i)).collect::<Vec<_>>()
+        );
+        let got = &store.pixels;
+        assert_eq!(got.x_unit, want.x_unit);
+        assert_eq!(got.x_world, want.x_world);
+        assert_eq!(got.shadings, want.shadings);
+        assert_eq!(got.gt, want.gt);
+        assert_eq!(got.seg, want.seg);
+        assert_eq!(got.cap, want.cap);
+    }
 }

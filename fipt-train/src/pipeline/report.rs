@@ -153,6 +153,10 @@ pub struct RoundReport {
     /// Its path counters (None for round 0 or when the shadings came from the cache).
     pub refine_paths: Option<PathStats>,
     pub train_s: f64,
+    /// The training pixels its fit saw (fewer in the refined rounds with
+    /// `refine.emitter_margin`).
+    #[serde(default)]
+    pub fit_pixels: usize,
     /// The fit's loss (every step's total), averaged into at most 200 bins: (step, loss).
     #[serde(default)]
     pub loss_curve: Vec<(u64, f32)>,
@@ -177,6 +181,8 @@ pub struct RoundWork {
     /// None for round 0 and for shadings from the refinement cache.
     pub refine_paths: Option<PathStats>,
     pub train_s: f64,
+    /// The training pixels the round's fit saw.
+    pub fit_pixels: usize,
 }
 
 impl RoundReport {
@@ -203,6 +209,7 @@ impl RoundReport {
             refine_s: work.refine_s,
             refine_paths: work.refine_paths,
             train_s: work.train_s,
+            fit_pixels: work.fit_pixels,
             loss_curve: binned(&log.step_total, 200),
             hop: log.hop.clone(),
         }

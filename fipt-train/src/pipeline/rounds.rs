@@ -86,6 +86,8 @@ pub struct Rounds {
     pub first: usize,
     /// The current round's refinement and fit.
     work: RoundWork,
+    /// Whether the pixels next to the emitters have left the store (`refine.emitter_margin`).
+    margin_applied: bool,
 }
 
 /// What the rounds leave: the last fit and the emitters.
@@ -161,7 +163,28 @@ impl Rounds {
             resumed,
             first,
             work: RoundWork::default(),
+            margin_applied: false,
         }
+    }
+
+    /// Before the fits on refined shadings, once: the pixels within `refine.emitter_margin`
+    /// of one that shows an extracted emitter leave the store. Their footprint takes in part of
+    /// the emitter, far brighter than the surface their centre ray hits.
+    pub fn leave_out_near_emitters(
+        &mut self,
+        ctx: &RunContext,
+        baked: &Baked,
+        store: &mut PixelStore,
+    ) {
+        let margin = ctx.cfg.refine.emitter_margin;
+        if self.margin_applied || margin == 0 {
+            return;
+        }
+        self.margin_applied = true;
+        let Some(em) = &self.emitters else { return };
+        let tris: std::collections::HashSet<i32> = em.iter().map(|e| e.triangle as i32).collect();
+        let near = pixels::near_emitters(&baked.hits, |t| tris.contains(&t), margin);
+        store.retain(|k, p| !near[k as usize][p as usize]);
     }
 
     /// (4) Round `r`'s shadings, path-traced with the last fit and the emitters (from the
@@ -235,6 +258,7 @@ impl Rounds {
             store,
             run: &run,
         };
+        self.work.fit_pixels = store.len();
         let (tr0, progress) = self.start_fit(ctx, setup, &of, r)?;
         let ck = &self.ck;
         let mut ck_s = 0.0;
@@ -398,6 +422,7 @@ impl Rounds {
             refine_s: self.work.refine_s,
             refine_paths: self.work.refine_paths.take(),
             train_s: self.work.train_s,
+            fit_pixels: self.work.fit_pixels,
         }
     }
 
@@ -433,6 +458,7 @@ pub fn run_rounds(
             PixelStore::gather(&ctx.ds.train, baked, &setup.scene_box, setup.mode)
         });
         if r > 0 {
+            rounds.leave_out_near_emitters(ctx, baked, st);
             rounds.refine(ctx, baked, st, r)?;
         }
         let fitted = rounds.fit(ctx, &setup, st, r)?;
