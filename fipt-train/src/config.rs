@@ -49,9 +49,9 @@ pub struct RefineSection {
     /// Weight of Eq. 17's m term in the fits on refined shadings (None: the same λ_d as its σ
     /// term, the reference).
     pub lambda_m: Option<f32>,
-    /// The fits on refined shadings leave out the pixels within this many pixels of one that
-    /// shows an extracted emitter (0, the default and the reference's: none);
-    /// `pipeline::pixels::near_emitters`.
+    /// The fits on refined shadings (and the refinement's material cache) leave out the pixels
+    /// within this many pixels of one that shows an extracted emitter (0, the default and the
+    /// reference's: none); `pipeline::pixels::near_emitters`.
     pub emitter_margin: usize,
     /// The path-traced estimators.
     pub paths: RefineConfig,

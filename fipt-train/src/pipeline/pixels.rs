@@ -1,6 +1,7 @@
-//! The stage-2 pixel store (paper §4.5): every training pixel with a first hit, as plain arrays
-//! of unit-cube and world positions, packed shadings, photo values and segment ids; batches are
-//! gathered from it by index.
+//! The stage-2 pixel store (paper §4.5): every training pixel with a first hit (less those a
+//! refined round leaves out next to the emitters), as plain arrays of unit-cube and world
+//! positions, packed shadings, photo values and segment ids; batches are gathered from it by
+//! index.
 //!
 //! Owns: the store, the segmentation map choice, the pixel footprint, the pixels next to the
 //! emitters. Must not touch: training.
@@ -13,7 +14,8 @@ use fipt_core::model::step::SegMode;
 use fipt_core::scene::{MapKind, SceneBox, Split};
 use fipt_core::shading::ShadingLayout;
 
-/// Every training pixel whose pixel-centre ray hit the mesh, as one big `Batch`.
+/// Every training pixel whose pixel-centre ray hit the mesh (less those `retain` removed), as
+/// one big `Batch`.
 pub struct PixelStore {
     pub pixels: Batch,
     /// (view, pixel) of each entry.
@@ -165,7 +167,8 @@ pub fn near_emitters(
 /// The pixels of a `width`-wide image within `margin` pixels (Chebyshev distance) of one that
 /// is `on`, not `on` themselves.
 pub fn ring_around(on: &[bool], width: usize, margin: usize) -> Vec<bool> {
-    let height = on.len() / width.max(1);
+    debug_assert!(width > 0 && on.len().is_multiple_of(width));
+    let height = on.len() / width;
     let mut near = vec![false; on.len()];
     let m = margin as isize;
     for (p, _) in on.iter().enumerate().filter(|(_, e)| **e) {

@@ -32,16 +32,22 @@ pub struct Refined {
 }
 
 /// A key of everything the refined shadings depend on beyond the bake: the model's parameters,
-/// the emitters and the refinement config (with its seed).
+/// the emitters, the refinement config (with its seed) and the store's pixels (whose hits the
+/// material cache averages the field over; `refine.emitter_margin` leaves some out).
 pub fn refine_key(
     bake_key: u64,
     model: &FiptModel,
     emitters: &[Emitter],
     cfg: &RefineConfig,
+    store: &PixelStore,
 ) -> anyhow::Result<u64> {
     let mut h = Fnv64::default();
     h.bytes(&bake_key.to_le_bytes());
     h.bytes(&REFINE_CODE_VERSION.to_le_bytes());
+    for &(k, p) in &store.origin {
+        h.bytes(&k.to_le_bytes());
+        h.bytes(&p.to_le_bytes());
+    }
     h.f32s(&model.grid.table);
     for p in model.net_params() {
         h.f32s(&p);

@@ -182,9 +182,17 @@ impl Rounds {
         }
         self.margin_applied = true;
         let Some(em) = &self.emitters else { return };
-        let tris: std::collections::HashSet<i32> = em.iter().map(|e| e.triangle as i32).collect();
-        let near = pixels::near_emitters(&baked.hits, |t| tris.contains(&t), margin);
-        store.retain(|k, p| !near[k as usize][p as usize]);
+        let mut lit = vec![false; ctx.ds.mesh.num_triangles()];
+        for e in em {
+            lit[e.triangle as usize] = true;
+        }
+        let near = pixels::near_emitters(&baked.hits, |t| lit[t as usize], margin);
+        let gone = store.retain(|k, p| !near[k as usize][p as usize]);
+        if ctx.progress() {
+            eprintln!(
+                "left {gone} pixels next to the emitters out of the refined fits (refine.emitter_margin {margin})"
+            );
+        }
     }
 
     /// (4) Round `r`'s shadings, path-traced with the last fit and the emitters (from the
@@ -199,7 +207,7 @@ impl Rounds {
         let (tr_prev, _) = self.prev.as_ref().context("no previous round")?;
         let em = self.emitters.as_ref().context("no emitters")?;
         let rcfg = ctx.cfg.refine_paths(r);
-        let key = refine::refine_key(ctx.bake_key, &tr_prev.model, em, &rcfg)?;
+        let key = refine::refine_key(ctx.bake_key, &tr_prev.model, em, &rcfg, store)?;
         let path = ctx.out.join("cache").join(format!("refine{r}.bin"));
         let (w, h) = (ctx.ds.train.width, ctx.ds.train.height);
         let (shadings, stats) =
