@@ -119,6 +119,10 @@ pub struct CheckReport {
     /// LDR photos (PNG, JPEG): per split, each view's share of pixels with a clipped channel
     /// (None: HDR photos).
     pub ldr_clipped: Option<BTreeMap<String, Vec<f64>>>,
+    /// LDR photos: the camera response read from the train views' occluding contours
+    /// (`ldr::edges`; None: HDR photos, or too few contour pixels).
+    #[serde(default)]
+    pub ldr_response: Option<crate::ldr::edges::EdgeFit>,
     pub problems: Vec<String>,
 }
 
@@ -223,6 +227,10 @@ pub fn check_scene(scene: &Path) -> Result<CheckReport> {
             })
             .collect()
     });
+    let ldr_response = ds
+        .is_ldr()
+        .then(|| crate::ldr::edges::estimate(&ds, &accel))
+        .flatten();
     Ok(CheckReport {
         scene: scene.display().to_string(),
         layout: format!("{:?}", ds.layout),
@@ -241,6 +249,7 @@ pub fn check_scene(scene: &Path) -> Result<CheckReport> {
         emitter_views: seen,
         renderer_agreement: renderer,
         ldr_clipped,
+        ldr_response,
         problems,
     })
 }
@@ -283,6 +292,15 @@ impl CheckReport {
                         "photos    {split}: LDR (8-bit), {:.2} % of pixels clipped on average; views with clipped regions: {clipped:?}",
                         100.0 * mean
                     );
+                }
+                match &self.ldr_response {
+                    Some(r) => println!(
+                        "response  from the contours: γ {:.3} / {:.3} / {:.3} on the sRGB curve (R / G / B), {:?} pixels",
+                        r.gamma[0], r.gamma[1], r.gamma[2], r.samples
+                    ),
+                    None => println!(
+                        "response  too few contour pixels to read it: a run assumes the sRGB curve"
+                    ),
                 }
             }
         }

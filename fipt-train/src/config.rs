@@ -111,10 +111,16 @@ pub struct LdrSection {
     /// Solve the radiance of clipped emitters from the pixels they light (false: keep the clip
     /// level, IRIS's extraction before its optimisation).
     pub solve_emitters: bool,
-    /// Estimate the camera response (γ per channel on the sRGB curve, `crate::ldr::response`)
-    /// with the emitter solve where lamps are clipped and it has 1,000 pixels or more; false
-    /// (the default): the sRGB curve. On rendered twins the estimate is 0.05–0.07 RMS off
-    /// (`docs/ldr.md`).
+    /// Estimate the camera response (γ per channel on the sRGB curve) from the pixels on the
+    /// occluding contours between surfaces (`crate::ldr::edges`) before anything reads the
+    /// photos; the sRGB curve where a channel has fewer than 50 such pixels, and when false.
+    pub edge_response: bool,
+    /// The contours' estimate replaces the sRGB curve only where it departs from it by more
+    /// than this RMS (over the forward curves): closer, it does not tell the two apart.
+    pub edge_tolerance: f64,
+    /// Estimate the camera response instead with the emitter solve (`crate::ldr::response`)
+    /// where lamps are clipped and it has 1,000 pixels or more (false, the default). On
+    /// rendered twins that estimate is 0.05–0.07 RMS off (`docs/ldr.md`).
     pub estimate_response: bool,
     /// Pixels of the emitter solve.
     pub solve_pixels: usize,
@@ -127,9 +133,11 @@ impl Default for LdrSection {
         Self {
             estimate_exposure: true,
             solve_emitters: true,
+            edge_response: true,
+            edge_tolerance: 0.025,
             estimate_response: false,
             solve_pixels: 20_000,
-            light_samples: 64,
+            light_samples: 512,
         }
     }
 }
@@ -213,6 +221,9 @@ pub struct TrainSection {
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
+    /// σ₀ of Eq. 17: the roughness its prior pulls every point towards (1: the paper's;
+    /// `docs/suite.md` measures 0.85).
+    pub prior_sigma: f32,
     pub lambda_part: f32,
     /// Soft bound on the σ and m logits (`loss::logit_bound_loss`; null: none, the reference).
     pub logit_bound: Option<f32>,
@@ -250,6 +261,7 @@ impl Default for TrainSection {
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
+            prior_sigma: 1.0,
             lambda_part: 5e-3,
             logit_bound: Some(5.0),
             lambda_logit: 1e-3,
@@ -430,6 +442,7 @@ impl TrainSection {
             .with_lr(self.lr)
             .with_lambda_e(self.lambda_e)
             .with_lambda_d(self.lambda_d)
+            .with_prior_sigma(self.prior_sigma)
             .with_lambda_part(self.lambda_part)
             .with_logit_bound(self.logit_bound)
             .with_lambda_logit(self.lambda_logit)
@@ -720,6 +733,7 @@ impl TrainSection {
             ("train.lambda_d_end", t.lambda_d_end),
             ("train.lambda_d_warmup", t.lambda_d_warmup),
             ("train.balance", t.balance),
+            ("train.prior_sigma", t.prior_sigma),
         ]
         .into_iter()
         .chain(warmup_override)

@@ -48,16 +48,24 @@ pub fn emission_loss(raw: Tensor<2>, weight: f32) -> Tensor<1> {
     raw.abs().mean().mul_scalar(weight)
 }
 
-/// Eq. 17: L_d = λ_d · (mean |σ − 1| + s·mean m), a pull towards rough dielectrics; s = 1 is
-/// the paper's (s: `TrainConfig::metallic_scale`).
+/// Eq. 17: L_d = λ_d · (mean |σ − σ₀| + s·mean m), a pull towards rough dielectrics; σ₀ = 1
+/// and s = 1 are the paper's (σ₀: `TrainConfig::prior_sigma`, s: `TrainConfig::metallic_scale`).
+/// The host form of one pixel's summand is [`diffuse_prior`].
 pub fn diffuse_loss(
     sigma: Tensor<2>,
     metallic: Tensor<2>,
     weight: f32,
     metallic_scale: f32,
+    prior_sigma: f32,
 ) -> Tensor<1> {
-    (sigma.sub_scalar(1.0).abs().mean() + metallic.mean().mul_scalar(metallic_scale))
+    (sigma.sub_scalar(prior_sigma).abs().mean() + metallic.mean().mul_scalar(metallic_scale))
         .mul_scalar(weight)
+}
+
+/// One pixel's summand of Eq. 17 on the host, λ_d · (|σ − σ₀| + m): what the hop and the
+/// landscape add to the data term.
+pub fn diffuse_prior(sigma: f32, metallic: f32, weight: f32, prior_sigma: f32) -> f32 {
+    weight * ((sigma - prior_sigma).abs() + metallic)
 }
 
 /// A soft bound on the material head's σ and m logits z (a departure from the reference):

@@ -1,9 +1,11 @@
 //! The camera response and the per-frame exposures of LDR photos, and the photos linearised with
 //! them (L = g(I)/e) before anything reads them.
 //!
-//! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in. With
-//!   `ldr.estimate_response`, the estimate (`super::response`, within the lamp solve) replaces
-//!   it before the bake.
+//! - **Response**: the sRGB curve, the encoding an 8-bit photo is written in, unless the
+//!   estimate from the pixels on the occluding contours (`super::edges`, `ldr.edge_response`)
+//!   departs from it by more than `ldr.edge_tolerance` (RMS), the estimate's own error on
+//!   rendered twins. With `ldr.estimate_response`, the lamp solve's estimate (`super::response`)
+//!   replaces it before the bake.
 //! - **Exposure**: a frame's `exposure` where the capture gives it; else estimated. Every
 //!   surface point seen in several views has one radiance (up to its specular part), so the
 //!   log-ratio of a frame's linearised pixels to the cross-view radiance of the points they see
@@ -34,6 +36,10 @@ pub enum ExposureSource {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Calibration {
     pub response: Response,
+    /// The estimate from the occluding contours (None: not read, or too few pixels); `response`
+    /// is it where it departs from the sRGB curve by more than `ldr.edge_tolerance`.
+    #[serde(default)]
+    pub edges: Option<super::edges::EdgeFit>,
     pub exposure_source: ExposureSource,
     /// e_i of the train frames (median 1) and of the val frames.
     pub train_exposures: Vec<f64>,
@@ -186,11 +192,37 @@ fn given(split: &Split, scale: f64) -> Option<Vec<f64>> {
         .collect()
 }
 
-/// Takes the sRGB response, estimates the exposures of an LDR dataset and relinearises its
-/// photos with them (`View::image`). `estimate`: estimate exposures that the capture does not
-/// give (else every frame has exposure 1).
-pub fn calibrate(ds: &mut Dataset, accel: &Accel, estimate: bool) -> Calibration {
-    calibrate_with(ds, accel, estimate, Response::srgb())
+/// How the response is chosen: read from the occluding contours or not, and how far (RMS over
+/// the forward curves) the contours' estimate must lie from the sRGB curve to replace it.
+#[derive(Clone, Copy, Debug)]
+pub struct ResponseChoice {
+    pub edges: bool,
+    pub tolerance: f64,
+}
+
+/// Takes the response (the sRGB curve, or the estimate from the occluding contours where
+/// `choice` reads them and the estimate departs from sRGB by more than its tolerance),
+/// estimates the exposures of an LDR dataset and relinearises its photos with them
+/// (`View::image`). `estimate`: estimate exposures that the capture does not give (else every
+/// frame has exposure 1).
+pub fn calibrate(
+    ds: &mut Dataset,
+    accel: &Accel,
+    estimate: bool,
+    choice: ResponseChoice,
+) -> Calibration {
+    let fit = choice
+        .edges
+        .then(|| super::edges::estimate(ds, accel))
+        .flatten();
+    let response = match &fit {
+        Some(f) if f.response().rms_forward(&Response::srgb()) > choice.tolerance => f.response(),
+        _ => Response::srgb(),
+    };
+    Calibration {
+        edges: fit,
+        ..calibrate_with(ds, accel, estimate, response)
+    }
 }
 
 /// `calibrate` with a given response (the estimated one, `super::response`).
@@ -246,6 +278,7 @@ pub fn calibrate_with(
             .map(|v| v.ldr.as_ref().map_or(0.0, |f| f.clipped_share()))
             .collect(),
         response,
+        edges: None,
         exposure_source: source,
         train_exposures: train_e,
         val_exposures: val_e,

@@ -6,6 +6,7 @@
 //!   them before the bake;
 //! - `lights`: the HDR radiance of clipped emitters, solved from the unclipped pixels they
 //!   light;
+//! - `edges`: the camera response read from the pixels on the edges between surfaces;
 //! - `response`: the camera response, estimated within that solve;
 //! - `report`: the run's LDR figures (view synthesis scored in LDR).
 //!
@@ -13,10 +14,11 @@
 //! tracing (fipt-bake).
 
 pub mod calibrate;
+pub mod edges;
 pub mod lights;
 pub mod report;
 pub mod response;
 pub mod twin;
 
-pub use calibrate::{Calibration, calibrate};
+pub use calibrate::{Calibration, ResponseChoice, calibrate};
 pub use twin::{TwinJob, TwinTruth, make_twin};

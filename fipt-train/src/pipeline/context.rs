@@ -67,9 +67,17 @@ impl<'a> RunContext<'a> {
         let mut ds = Dataset::load(scene, &load_opts())?;
         let lock = crate::lock::DirLock::acquire(out)?;
         let accel = Accel::build(&ds.mesh);
-        let ldr = ds
-            .is_ldr()
-            .then(|| crate::ldr::calibrate(&mut ds, &accel, cfg.ldr.estimate_exposure));
+        let ldr = ds.is_ldr().then(|| {
+            crate::ldr::calibrate(
+                &mut ds,
+                &accel,
+                cfg.ldr.estimate_exposure,
+                crate::ldr::ResponseChoice {
+                    edges: cfg.ldr.edge_response && !cfg.ldr.estimate_response,
+                    tolerance: cfg.ldr.edge_tolerance,
+                },
+            )
+        });
         let bake_cfg = cfg.bake_config();
         let bake_key = crate::cache::cache_key(&ds, &bake_cfg)?;
         Ok(Self {

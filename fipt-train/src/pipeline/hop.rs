@@ -191,14 +191,30 @@ struct Hypotheses<'a> {
     carried: Option<&'a FiptModel>,
 }
 
-/// One pixel's objective (Eq. 15 + λ_d·Eq. 17's summand) at base colour `a`, roughness `sigma`
+/// Eq. 17 as an objective holds it: its weight λ_d and the roughness σ₀ it pulls towards.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Prior {
+    lambda_d: f32,
+    sigma: f32,
+}
+
+impl Prior {
+    /// The data term alone.
+    #[cfg(test)]
+    const NONE: Prior = Prior {
+        lambda_d: 0.0,
+        sigma: 1.0,
+    };
+}
+
+/// One pixel's objective (Eq. 15 + Eq. 17's summand) at base colour `a`, roughness `sigma`
 /// and metallic `m`, for emission mask `alpha`, packed shadings `sh` and photo `gt`.
 fn pixel_objective(
     (a, sigma, m): (glam::Vec3, f32, f32),
     alpha: f32,
     sh: &[f32],
     gt: &[f32],
-    lambda_d: f32,
+    prior: Prior,
 ) -> f64 {
     let (kd, ks) = reflectances(a, m);
     let c = factorised_render(kd.to_array(), ks.to_array(), sigma, sh);
@@ -206,7 +222,7 @@ fn pixel_objective(
         .map(|k| (tonemap((1.0 - alpha) * c[k] + alpha * gt[k]) - tonemap(gt[k])).powi(2))
         .sum::<f64>()
         / 3.0;
-    data + (lambda_d * ((sigma - 1.0).abs() + m)) as f64
+    data + fipt_core::model::loss::diffuse_prior(sigma, m, prior.lambda_d, prior.sigma) as f64
 }
 
 /// One base colour for a segment's pixels at roughness `sigma` and metallic `m`: the render
@@ -248,7 +264,7 @@ fn evaluate(
     model: &FiptModel,
     store: &PixelStore,
     samples: &[SegmentSample],
-    lambda_d: f32,
+    prior: Prior,
     with: Hypotheses,
 ) -> Vec<SegmentEval> {
     use rayon::prelude::*;
@@ -262,7 +278,7 @@ fn evaluate(
             let n = s.idx.len() as f64;
             let term = |i: usize, am: (glam::Vec3, f32, f32)| -> f64 {
                 let sh = ShadingLayout::pixel(&b.shadings, i);
-                pixel_objective(am, alpha[i], sh, &b.gt[3 * i..3 * i + 3], lambda_d)
+                pixel_objective(am, alpha[i], sh, &b.gt[3 * i..3 * i + 3], prior)
             };
             let base = |i: usize| glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
             // Sums over pixels, each in pixel order (so that a run gives the same bits on any
@@ -474,12 +490,16 @@ pub fn hop(
     }
     let samples = sample(store, plan.cfg.pixels);
     let held = plan.lambda_d * plan.cfg.prior;
+    let prior = Prior {
+        lambda_d: held,
+        sigma: tr.cfg.prior_sigma,
+    };
     let with = Hypotheses {
         sweep: true,
         metal: plan.cfg.metal,
         carried: plan.carried.filter(|_| plan.cfg.carry),
     };
-    let before = evaluate(&tr.model, store, &samples, held, with);
+    let before = evaluate(&tr.model, store, &samples, prior, with);
     let segments = checks(&samples, &before);
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
@@ -548,7 +568,7 @@ pub fn hop(
     tr.pull = None;
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
-    let after = evaluate(&tr.model, store, &samples, held, Hypotheses::default());
+    let after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
     let objective_after = whole(&samples, &after);
     for c in &mut report.candidates {
         if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
@@ -622,7 +642,10 @@ mod tests {
             &tr.model,
             &st,
             &samples,
-            3e-2,
+            Prior {
+                lambda_d: 3e-2,
+                sigma: 1.0,
+            },
             Hypotheses {
                 sweep: true,
                 ..Default::default()
@@ -639,7 +662,7 @@ mod tests {
         assert_eq!(e[0].sweep.len(), SWEEP);
         assert!(e[0].sigma > 0.02 && e[0].sigma < 1.0);
         // `prior` 0 holds no λ_d: the data term alone, Eq. 15.
-        let data = evaluate(&tr.model, &st, &samples, 0.0, Hypotheses::default());
+        let data = evaluate(&tr.model, &st, &samples, Prior::NONE, Hypotheses::default());
         let want = parts.color as f64;
         assert!(
             (data[0].own - want).abs() < 1e-5 * want.abs().max(1e-3),
@@ -742,7 +765,7 @@ mod tests {
             metal: true,
             carried: None,
         };
-        let e = evaluate(&tr.model, &st, &samples, 0.0, with).remove(0);
+        let e = evaluate(&tr.model, &st, &samples, Prior::NONE, with).remove(0);
         let (best_sigma, best) = profile_min(&e.metal);
         assert_eq!(best_sigma, sigma as f64);
         let (_, dielectric) = profile_min(&e.sweep);
@@ -776,7 +799,7 @@ mod tests {
         let (tr, _) = toy_fitted(&st);
         let samples = sample(&st, 64);
         let m_of = |t: &Trainer| -> Vec<f64> {
-            evaluate(&t.model, &st, &samples, 0.0, Hypotheses::default())
+            evaluate(&t.model, &st, &samples, Prior::NONE, Hypotheses::default())
                 .iter()
                 .map(|e| e.metallic)
                 .collect()
@@ -821,7 +844,7 @@ mod tests {
             carried: Some(&tr.model),
             ..Hypotheses::default()
         };
-        for e in evaluate(&tr.model, &st, &samples, 0.0, with) {
+        for e in evaluate(&tr.model, &st, &samples, Prior::NONE, with) {
             let (sigma, m, obj) = e.carried.unwrap();
             assert_eq!((sigma, m, obj), (e.sigma, e.metallic, e.own));
         }
@@ -883,7 +906,7 @@ mod tests {
         assert!(data.candidates.is_empty() && full.candidates.is_empty());
         assert_eq!((data.lambda_d, full.lambda_d), (0.0, lambda_d as f64));
         let samples = sample(&st, 64);
-        let want = evaluate(&tr.model, &st, &samples, 0.0, Hypotheses::default());
+        let want = evaluate(&tr.model, &st, &samples, Prior::NONE, Hypotheses::default());
         let mat = |s: &SegmentSample| tr.model.material(&st.batch(&s.idx).x_unit);
         for ((d, f), (s, w)) in data
             .segments

@@ -1,7 +1,7 @@
 //! The loss landscape per part (a diagnostic for issue-level questions such as "do the
 //! shadings carry the roughness?"): at every training pixel of a part, the stage-2 data term
 //! (MSE of sRGB-encoded HDR, Eq. 15) of the factorised render with the **true** base colour and
-//! metallic and a swept roughness σ, and the diffuse prior λ_d(|σ − 1| + m) of Eq. 17. The
+//! metallic and a swept roughness σ, and the diffuse prior λ_d(|σ − σ₀| + m) of Eq. 17. The
 //! minimiser of the data term over σ says what the shadings support; that of data + prior what
 //! the objective supports.
 //!
@@ -65,7 +65,7 @@ pub fn landscape(
     ds: &Dataset,
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
-    lambda_d: f32,
+    (lambda_d, prior_sigma): (f32, f32),
     fitted: Option<&[ViewMaps]>,
     margin: usize,
 ) -> Vec<PartLandscape> {
@@ -147,7 +147,8 @@ pub fn landscape(
             for (i, &sig) in sweep.iter().enumerate() {
                 let c = factorised_render(kd.to_array(), ks.to_array(), sig, s);
                 row.data[i] += err(c, gt);
-                row.prior[i] += (lambda_d * ((sig - 1.0).abs() + m)) as f64;
+                row.prior[i] +=
+                    fipt_core::model::loss::diffuse_prior(sig, m, lambda_d, prior_sigma) as f64;
             }
             if let (Some(f), Some(maps)) = (row.fitted.as_mut(), fitted) {
                 let mp = &maps[k];

@@ -40,9 +40,9 @@ pub fn landscapes(
     };
     let maps = maps.as_deref();
     let (baked, _) = bake::bake_cached(out, ds, &ctx.accel, &ctx.bake_cfg, ctx.progress())?;
-    // Each table's prior is the λ_d of the fit on those shadings (round 0's for the baked and
+    // Each table's prior is the λ_d (and σ₀) of the fit on those shadings (round 0's for the baked and
     // the oracle shadings, round r's for `refine{r}.bin`).
-    let lambda = |r: usize| cfg.train_for_round(r).lambda_d;
+    let lambda = |r: usize| (cfg.train_for_round(r).lambda_d, cfg.train.prior_sigma);
     let margin = cfg.refine.emitter_margin;
     let mut tables = vec![(
         "baked".to_string(),

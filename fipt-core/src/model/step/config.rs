@@ -41,6 +41,9 @@ pub struct TrainConfig {
     /// Weight of Eq. 17's m term as a multiple of λ_d (1: the paper's λ_d·(|σ − 1| + m)).
     #[config(default = 1.0)]
     pub metallic_scale: f32,
+    /// σ₀ of Eq. 17, the roughness its prior pulls towards (1: the paper's).
+    #[config(default = 1.0)]
+    pub prior_sigma: f32,
     /// λ_p of Eq. 18–19.
     #[config(default = 5e-3)]
     pub lambda_part: f32,

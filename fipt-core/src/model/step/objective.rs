@@ -46,6 +46,7 @@ impl Trainer {
             mat.metallic.clone(),
             self.cfg.lambda_d,
             self.cfg.metallic_scale,
+            self.cfg.prior_sigma,
         );
         if let Some(z_max) = self.cfg.logit_bound {
             // Reported with the prior it bounds (the loss parts keep their five slots).
