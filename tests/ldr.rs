@@ -237,7 +237,7 @@ fn bad_ldr_input_names_the_file() {
 fn the_response_is_read_from_the_contours() {
     let choice = fipt_train::ldr::ResponseChoice {
         edges: true,
-        tolerance: 0.025,
+        tolerance: 0.02,
     };
     for (response, far_from_srgb) in [("srgb", false), ("gamma:1.8", true)] {
         let out = common::tmp_dir(&format!("ldr-edges-{}", response.replace(':', "-")));

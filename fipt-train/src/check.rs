@@ -295,8 +295,8 @@ impl CheckReport {
                 }
                 match &self.ldr_response {
                     Some(r) => println!(
-                        "response  from the contours: γ {:.3} / {:.3} / {:.3} on the sRGB curve (R / G / B), {:?} pixels",
-                        r.gamma[0], r.gamma[1], r.gamma[2], r.samples
+                        "response  from the contours: γ {:.3} on the sRGB curve, {:?} pixels (R, G, B)",
+                        r.gamma[0], r.samples
                     ),
                     None => println!(
                         "response  too few contour pixels to read it: a run assumes the sRGB curve"

@@ -18,9 +18,9 @@
 //!   read γ 0.5–0.9 where the contours read the truth. A channel is left out where a side's
 //!   plane misses a neighbour by more than 0.01 + 5 % (texture, a shadow's edge), where the
 //!   two sides are within 0.1 of each other (no curvature to read), or where a code is clipped.
-//! - **Estimate** (`fit_gamma`): γ_c of the family g_c(v) = srgb⁻¹(v)^γ_c
-//!   (`Response::srgb_power`), per channel, minimising a Cauchy loss of the code residual
-//!   f_γ(α·g_γ(I_A) + (1 − α)·g_γ(I_B)) − I_p over log₂ γ in [−1, 1].
+//! - **Estimate** (`fit_gamma`): one γ of the family g(v) = srgb⁻¹(v)^γ
+//!   (`Response::srgb_power`) for the three channels, minimising a Cauchy loss of the code
+//!   residual f_γ(α·g_γ(I_A) + (1 − α)·g_γ(I_B)) − I_p over log₂ γ in [−1, 1].
 //!
 //! The photos' pixel filter must be a box (the renderers of the FIPT layouts, fipt's and
 //! Mitsuba's `box`, use one); a camera's demosaicing and sharpening are not modelled.
@@ -66,13 +66,14 @@ pub struct EdgeSample {
     pub usable: [bool; 3],
 }
 
-/// The estimate: γ per channel, how many samples each read, and the cost curve.
+/// The estimate: γ (one for all channels), how many samples each channel read, and the cost
+/// curve.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct EdgeFit {
     pub gamma: [f64; 3],
     pub samples: [usize; 3],
-    /// (γ, mean cost per channel) over the coarse grid.
-    pub curve: Vec<(f64, [f64; 3])>,
+    /// (γ, mean cost) over the coarse grid.
+    pub curve: Vec<(f64, f64)>,
 }
 
 impl EdgeFit {
@@ -305,19 +306,20 @@ fn fit_plane(pts: &[(usize, f64, f64)], v: &[f64]) -> Option<[f64; 3]> {
     Some(out)
 }
 
-/// The mean Cauchy cost of channel `c`'s samples under γ.
-fn cost(samples: &[&EdgeSample], c: usize, gamma: f64) -> f64 {
+/// The mean Cauchy cost of the samples' usable channels under γ.
+fn cost(samples: &[EdgeSample], gamma: f64) -> f64 {
     let g = |v: f64| srgb_to_linear(v).powf(gamma);
     let f = |x: f64| linear_to_srgb(x.max(0.0).powf(1.0 / gamma));
-    let sum: f64 = samples
-        .iter()
-        .map(|s| {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for s in samples {
+        for c in (0..3).filter(|&c| s.usable[c]) {
             let pred = f(s.alpha * g(s.a[c]) + (1.0 - s.alpha) * g(s.b[c]));
             let r = (pred - s.p[c]) / CODE_SCALE;
-            (1.0 + r * r).ln()
-        })
-        .sum();
-    sum / samples.len().max(1) as f64
+            sum += (1.0 + r * r).ln();
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f64
 }
 
 /// The estimate from the edges of every train view (None where a channel has fewer than
@@ -337,41 +339,33 @@ pub fn estimate(ds: &fipt_core::scene::Dataset, accel: &Accel) -> Option<EdgeFit
     fit_gamma(&samples)
 }
 
-/// γ per channel from the samples (None where a channel has fewer than `MIN_SAMPLES`): a grid
-/// over log₂ γ ∈ [−1, 1] in steps of 0.02, then steps of 0.002 around the best.
+/// One γ for all three channels from the samples (None where a channel has fewer than
+/// `MIN_SAMPLES`): a grid over log₂ γ ∈ [−1, 1] in steps of 0.02, then steps of 0.002 around
+/// the best. One exponent, not one per channel: a camera's curves differ little between
+/// channels, and per-channel exponents fitted to a few hundred pixels each differ by their
+/// noise.
 pub fn fit_gamma(samples: &[EdgeSample]) -> Option<EdgeFit> {
-    let per: Vec<Vec<&EdgeSample>> = (0..3)
-        .map(|c| samples.iter().filter(|s| s.usable[c]).collect())
-        .collect();
-    if per.iter().any(|v| v.len() < MIN_SAMPLES) {
+    let counts = [0, 1, 2].map(|c| samples.iter().filter(|s| s.usable[c]).count());
+    if counts.iter().any(|&n| n < MIN_SAMPLES) {
         return None;
     }
     let coarse: Vec<f64> = (0..=100).map(|i| -1.0 + 0.02 * i as f64).collect();
-    let curve: Vec<(f64, [f64; 3])> = coarse
+    let curve: Vec<(f64, f64)> = coarse
         .par_iter()
-        .map(|&l| {
-            (
-                2f64.powf(l),
-                [0, 1, 2].map(|c| cost(&per[c], c, 2f64.powf(l))),
-            )
-        })
+        .map(|&l| (2f64.powf(l), cost(samples, 2f64.powf(l))))
         .collect();
-    let gamma = [0, 1, 2].map(|c| {
-        let best = curve
-            .iter()
-            .map(|(g, v)| (g.log2(), v[c]))
-            .min_by(|x, y| x.1.total_cmp(&y.1))
-            .map_or(0.0, |x| x.0);
-        let fine = (-10..=10)
-            .map(|i| best + 0.002 * i as f64)
-            .map(|l| (l, cost(&per[c], c, 2f64.powf(l))))
-            .min_by(|x, y| x.1.total_cmp(&y.1))
-            .map_or(best, |x| x.0);
-        2f64.powf(fine)
-    });
+    let best = curve
+        .iter()
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .map_or(0.0, |x| x.0.log2());
+    let fine = (-10..=10)
+        .map(|i| best + 0.002 * i as f64)
+        .map(|l| (l, cost(samples, 2f64.powf(l))))
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .map_or(best, |x| x.0);
     Some(EdgeFit {
-        gamma,
-        samples: [0, 1, 2].map(|c| per[c].len()),
+        gamma: [2f64.powf(fine); 3],
+        samples: counts,
         curve,
     })
 }
@@ -381,12 +375,12 @@ mod tests {
     use super::*;
     use fipt_core::rng::Rng;
 
-    /// Samples drawn from the mixing model under a known γ per channel, 8-bit codes with a
-    /// code of noise, and 10 % of them outliers: the fit recovers γ within 2 %, and the sRGB
-    /// curve (γ = 1) would be 0.02 RMS or more off.
+    /// Samples drawn from the mixing model under a known γ, 8-bit codes with a code of noise,
+    /// and 10 % of them outliers: the fit recovers γ within 2 %, and the sRGB curve (γ = 1)
+    /// would be 0.02 RMS or more off.
     #[test]
     fn fit_recovers_the_gamma_of_mixed_pixels() {
-        let truth = [0.8, 1.0, 1.25];
+        let truth = [0.8; 3];
         let mut rng = Rng::new(3, 9);
         let enc = |c: usize, x: f64| {
             let v = linear_to_srgb(x.clamp(0.0, 1.0).powf(1.0 / truth[c]));
