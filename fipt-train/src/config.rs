@@ -115,7 +115,7 @@ pub struct LdrSection {
     /// occluding contours between surfaces (`crate::ldr::edges`) before anything reads the
     /// photos; the sRGB curve where a channel has fewer than 50 such pixels, and when false
     /// (the default: on a `gamma:1.8` twin the estimate, 0.012 RMS off, gives k_d 4.8 dB below
-    /// the sRGB curve's; `docs/departures/response-edges.md`).
+    /// the sRGB curve's and 7.7 dB below the true curve's; `docs/departures/response-edges.md`).
     pub edge_response: bool,
     /// The contours' estimate replaces the sRGB curve only where it departs from it by more
     /// than this RMS (over the forward curves): closer, it does not tell the two apart.
