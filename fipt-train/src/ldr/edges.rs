@@ -84,7 +84,7 @@ impl EdgeFit {
 
 /// A key per plane of the mesh: the triangle's unit normal and offset, quantised (coplanar
 /// triangles share it).
-fn plane_keys(mesh: &Mesh) -> Vec<u64> {
+pub fn plane_keys(mesh: &Mesh) -> Vec<u64> {
     (0..mesh.num_triangles())
         .map(|t| {
             let n = mesh.normal(t);
@@ -109,9 +109,13 @@ struct Surface {
 /// No surface (a ray that leaves the scene).
 const MISS: u64 = u64::MAX;
 
-/// The edge samples of one view.
-pub fn edge_samples(mesh: &Mesh, accel: &Accel, cam: &Camera, frame: &LdrFrame) -> Vec<EdgeSample> {
-    let keys = plane_keys(mesh);
+/// The edge samples of one view; `keys` are the mesh's `plane_keys`.
+pub fn edge_samples(
+    keys: &[u64],
+    accel: &Accel,
+    cam: &Camera,
+    frame: &LdrFrame,
+) -> Vec<EdgeSample> {
     let (w, h) = (cam.width, cam.height);
     let o = cam.origin_f32();
     let key_of = |hit: Option<fipt_bake::Hit>| hit.map_or(MISS, |x| keys[x.tri as usize]);
@@ -325,6 +329,7 @@ fn cost(samples: &[EdgeSample], gamma: f64) -> f64 {
 /// The estimate from the edges of every train view (None where a channel has fewer than
 /// `MIN_SAMPLES` samples, or the photos are HDR).
 pub fn estimate(ds: &fipt_core::scene::Dataset, accel: &Accel) -> Option<EdgeFit> {
+    let keys = plane_keys(&ds.mesh);
     let samples: Vec<EdgeSample> = ds
         .train
         .views
@@ -332,7 +337,7 @@ pub fn estimate(ds: &fipt_core::scene::Dataset, accel: &Accel) -> Option<EdgeFit
         .filter_map(|v| {
             v.ldr
                 .as_ref()
-                .map(|f| edge_samples(&ds.mesh, accel, &v.camera, f))
+                .map(|f| edge_samples(&keys, accel, &v.camera, f))
         })
         .flatten()
         .collect();
