@@ -16,7 +16,7 @@
 //! plateau, a hop to where the objective already says it should be does.
 //!
 //! The objective evaluated is that of the fit, Eq. 15 + 17: the tone-mapped MSE of the
-//! composite (1 − α)·C + α·I and λ_d·(|σ − 1| + m), on up to `pixels` pixels per segment
+//! composite (1 − α)·C + α·I and λ_d·(|σ − σ₀| + m), on up to `pixels` pixels per segment
 //! (evenly strided over the store), weighted by segment size, with λ_d = `prior` × the fit's
 //! final λ_d. With `prior` 0 (the shipped configs) it is the data term alone: a segment whose
 //! data is flat gains less than `gain` anywhere and keeps the σ the fit reached under its
@@ -644,7 +644,7 @@ mod tests {
             &samples,
             Prior {
                 lambda_d: 3e-2,
-                sigma: 1.0,
+                sigma: tr.cfg.prior_sigma,
             },
             Hypotheses {
                 sweep: true,
@@ -877,7 +877,7 @@ mod tests {
     }
 
     /// The check holds `prior` × the fit's λ_d: with 0 each segment's objective is its data
-    /// term, with 1 the data term plus λ_d·mean(|σ − 1| + m).
+    /// term, with 1 the data term plus λ_d·mean(|σ − σ₀| + m).
     #[test]
     fn the_check_holds_its_share_of_the_prior() {
         let st = toy_store(400);
@@ -917,7 +917,7 @@ mod tests {
             assert_eq!(d.before, w.own);
             let m = mat(s);
             let prior = (0..s.idx.len())
-                .map(|i| ((m.sigma[i] - 1.0).abs() + m.metallic[i]) as f64)
+                .map(|i| ((m.sigma[i] - tr.cfg.prior_sigma).abs() + m.metallic[i]) as f64)
                 .sum::<f64>()
                 / s.idx.len() as f64;
             assert!(
