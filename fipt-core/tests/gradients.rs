@@ -197,56 +197,48 @@ fn loss_gradients() {
         1e-6,
         1e-12,
     );
-    // The m term weighted apart (`TrainConfig::metallic_scale`): λ·(mean|σ − 1| + s·mean m).
+    // Eq. 17 with the m term weighted apart (`TrainConfig::metallic_scale` 5) and σ₀: its
+    // closed form λ·(mean|σ − σ₀| + 5·mean m), the host summand and the gradients.
     let t = |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [n, 1]), &dev64());
-    let got = loss::diffuse_loss(t(&s), t(&m), 1e-4, 5.0, 1.0).into_scalar::<f64>();
     let mean =
         |v: &[f32], f: &dyn Fn(f32) -> f32| v.iter().map(|&x| f(x) as f64).sum::<f64>() / n as f64;
-    let want = 1e-4 * (mean(&s, &|x| (x - 1.0).abs()) + 5.0 * mean(&m, &|x| x));
-    assert!(
-        (got - want).abs() < 1e-9,
-        "L_d with the m term ×5: {got} vs {want}"
-    );
-    grad_check(
-        "L_d, m term ×5",
-        &[(s.clone(), [n, 1]), (m.clone(), [n, 1])],
-        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 1e-4, 5.0, 1.0),
-        1e-6,
-        1e-6,
-        1e-12,
-    );
+    let prior_case = |what: &str, sigma: &[f32], s0: f32| {
+        let got = loss::diffuse_loss(t(sigma), t(&m), 1e-4, 5.0, s0).into_scalar::<f64>();
+        let want = 1e-4 * (mean(sigma, &|x| (x - s0).abs()) + 5.0 * mean(&m, &|x| x));
+        assert!((got - want).abs() < 1e-9, "{what}: {got} vs {want}");
+        let prior = loss::DiffusePrior {
+            lambda_d: 1e-4,
+            sigma: s0,
+        };
+        let host = sigma
+            .iter()
+            .zip(&m)
+            .map(|(&x, &y)| prior.at(x, 5.0 * y) as f64)
+            .sum::<f64>()
+            / n as f64;
+        assert!(
+            (host - want).abs() < 1e-9,
+            "{what}, the host summand: {host} vs {want}"
+        );
+        grad_check(
+            what,
+            &[(sigma.to_vec(), [n, 1]), (m.clone(), [n, 1])],
+            &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 1e-4, 5.0, s0),
+            1e-6,
+            1e-6,
+            1e-12,
+        );
+    };
+    prior_case("L_d, m term ×5", &s, 1.0);
     // A prior σ₀ = 0.85 inside the range: σ on both sides of it (kept 0.05 away from the kink),
-    // so the pull changes sign at σ₀; the host summand is the same function.
+    // so the pull changes sign at σ₀.
     let s0 = 0.85f32;
     let sk: Vec<f32> = uniform(n, 0.0, 1.0, 29)
         .iter()
         .map(|&u| if u < 0.5 { 0.3 + u } else { 0.4 + u })
         .collect();
     assert!(sk.iter().any(|&x| x < s0) && sk.iter().any(|&x| x > s0));
-    let got = loss::diffuse_loss(t(&sk), t(&m), 1e-4, 5.0, s0).into_scalar::<f64>();
-    let want = 1e-4 * (mean(&sk, &|x| (x - s0).abs()) + 5.0 * mean(&m, &|x| x));
-    assert!(
-        (got - want).abs() < 1e-9,
-        "L_d with σ₀ = 0.85: {got} vs {want}"
-    );
-    let host = sk
-        .iter()
-        .zip(&m)
-        .map(|(&x, &y)| loss::diffuse_prior(x, 5.0 * y, 1e-4, s0) as f64)
-        .sum::<f64>()
-        / n as f64;
-    assert!(
-        (host - want).abs() < 1e-9,
-        "the host summand: {host} vs {want}"
-    );
-    grad_check(
-        "L_d, σ₀ = 0.85",
-        &[(sk.clone(), [n, 1]), (m.clone(), [n, 1])],
-        &|x| loss::diffuse_loss(x[0].clone(), x[1].clone(), 1e-4, 5.0, s0),
-        1e-6,
-        1e-6,
-        1e-12,
-    );
+    prior_case("L_d, σ₀ = 0.85", &sk, s0);
     // Logits on both sides of ±z_max (kept 0.05 away from the kinks).
     let z: Vec<f32> = uniform(2 * n, 0.0, 1.0, 28)
         .iter()

@@ -224,7 +224,7 @@ pub struct TrainSection {
     pub lambda_e: f32,
     pub lambda_d: f32,
     /// σ₀ of Eq. 17: the roughness its prior pulls every point towards (1: the paper's;
-    /// `docs/suite.md` measures 0.85).
+    /// `docs/suite.md` measures 0.75–0.9).
     pub prior_sigma: f32,
     pub lambda_part: f32,
     /// Soft bound on the σ and m logits (`loss::logit_bound_loss`; null: none, the reference).

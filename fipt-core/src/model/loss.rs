@@ -50,7 +50,7 @@ pub fn emission_loss(raw: Tensor<2>, weight: f32) -> Tensor<1> {
 
 /// Eq. 17: L_d = λ_d · (mean |σ − σ₀| + s·mean m), a pull towards rough dielectrics; σ₀ = 1
 /// and s = 1 are the paper's (σ₀: `TrainConfig::prior_sigma`, s: `TrainConfig::metallic_scale`).
-/// The host form of one pixel's summand is [`diffuse_prior`].
+/// The host form of one pixel's summand is [`DiffusePrior::at`].
 pub fn diffuse_loss(
     sigma: Tensor<2>,
     metallic: Tensor<2>,
@@ -62,10 +62,25 @@ pub fn diffuse_loss(
         .mul_scalar(weight)
 }
 
-/// One pixel's summand of Eq. 17 on the host, λ_d · (|σ − σ₀| + m): what the hop and the
-/// landscape add to the data term.
-pub fn diffuse_prior(sigma: f32, metallic: f32, weight: f32, prior_sigma: f32) -> f32 {
-    weight * ((sigma - prior_sigma).abs() + metallic)
+/// Eq. 17 on the host, as the hop and the landscape add it to the data term: its weight λ_d
+/// and the roughness σ₀ it pulls towards.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DiffusePrior {
+    pub lambda_d: f32,
+    pub sigma: f32,
+}
+
+impl DiffusePrior {
+    /// No prior: the data term alone.
+    pub const NONE: DiffusePrior = DiffusePrior {
+        lambda_d: 0.0,
+        sigma: 1.0,
+    };
+
+    /// One pixel's summand, λ_d · (|σ − σ₀| + m).
+    pub fn at(self, sigma: f32, metallic: f32) -> f32 {
+        self.lambda_d * ((sigma - self.sigma).abs() + metallic)
+    }
 }
 
 /// A soft bound on the material head's σ and m logits z (a departure from the reference):

@@ -33,7 +33,7 @@ use super::pixels::PixelStore;
 use crate::config::{HopConfig, TrainSection};
 use crate::progress::progress_bar;
 use fipt_core::brdf::{factorised_render, reflectances};
-use fipt_core::model::loss::tonemap_host as tonemap;
+use fipt_core::model::loss::{DiffusePrior, tonemap_host as tonemap};
 use fipt_core::model::step::{DeviceStore, SegMode, SigmaPull};
 use fipt_core::model::{FiptModel, Trainer};
 use fipt_core::rng::Rng;
@@ -191,22 +191,6 @@ struct Hypotheses<'a> {
     carried: Option<&'a FiptModel>,
 }
 
-/// Eq. 17 as an objective holds it: its weight λ_d and the roughness σ₀ it pulls towards.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Prior {
-    lambda_d: f32,
-    sigma: f32,
-}
-
-impl Prior {
-    /// The data term alone.
-    #[cfg(test)]
-    const NONE: Prior = Prior {
-        lambda_d: 0.0,
-        sigma: 1.0,
-    };
-}
-
 /// One pixel's objective (Eq. 15 + Eq. 17's summand) at base colour `a`, roughness `sigma`
 /// and metallic `m`, for emission mask `alpha`, packed shadings `sh` and photo `gt`.
 fn pixel_objective(
@@ -214,7 +198,7 @@ fn pixel_objective(
     alpha: f32,
     sh: &[f32],
     gt: &[f32],
-    prior: Prior,
+    prior: DiffusePrior,
 ) -> f64 {
     let (kd, ks) = reflectances(a, m);
     let c = factorised_render(kd.to_array(), ks.to_array(), sigma, sh);
@@ -222,7 +206,7 @@ fn pixel_objective(
         .map(|k| (tonemap((1.0 - alpha) * c[k] + alpha * gt[k]) - tonemap(gt[k])).powi(2))
         .sum::<f64>()
         / 3.0;
-    data + fipt_core::model::loss::diffuse_prior(sigma, m, prior.lambda_d, prior.sigma) as f64
+    data + prior.at(sigma, m) as f64
 }
 
 /// One base colour for a segment's pixels at roughness `sigma` and metallic `m`: the render
@@ -264,7 +248,7 @@ fn evaluate(
     model: &FiptModel,
     store: &PixelStore,
     samples: &[SegmentSample],
-    prior: Prior,
+    prior: DiffusePrior,
     with: Hypotheses,
 ) -> Vec<SegmentEval> {
     use rayon::prelude::*;
@@ -490,7 +474,7 @@ pub fn hop(
     }
     let samples = sample(store, plan.cfg.pixels);
     let held = plan.lambda_d * plan.cfg.prior;
-    let prior = Prior {
+    let prior = DiffusePrior {
         lambda_d: held,
         sigma: tr.cfg.prior_sigma,
     };
@@ -642,7 +626,7 @@ mod tests {
             &tr.model,
             &st,
             &samples,
-            Prior {
+            DiffusePrior {
                 lambda_d: 3e-2,
                 sigma: tr.cfg.prior_sigma,
             },
@@ -662,7 +646,13 @@ mod tests {
         assert_eq!(e[0].sweep.len(), SWEEP);
         assert!(e[0].sigma > 0.02 && e[0].sigma < 1.0);
         // `prior` 0 holds no λ_d: the data term alone, Eq. 15.
-        let data = evaluate(&tr.model, &st, &samples, Prior::NONE, Hypotheses::default());
+        let data = evaluate(
+            &tr.model,
+            &st,
+            &samples,
+            DiffusePrior::NONE,
+            Hypotheses::default(),
+        );
         let want = parts.color as f64;
         assert!(
             (data[0].own - want).abs() < 1e-5 * want.abs().max(1e-3),
@@ -765,7 +755,7 @@ mod tests {
             metal: true,
             carried: None,
         };
-        let e = evaluate(&tr.model, &st, &samples, Prior::NONE, with).remove(0);
+        let e = evaluate(&tr.model, &st, &samples, DiffusePrior::NONE, with).remove(0);
         let (best_sigma, best) = profile_min(&e.metal);
         assert_eq!(best_sigma, sigma as f64);
         let (_, dielectric) = profile_min(&e.sweep);
@@ -799,10 +789,16 @@ mod tests {
         let (tr, _) = toy_fitted(&st);
         let samples = sample(&st, 64);
         let m_of = |t: &Trainer| -> Vec<f64> {
-            evaluate(&t.model, &st, &samples, Prior::NONE, Hypotheses::default())
-                .iter()
-                .map(|e| e.metallic)
-                .collect()
+            evaluate(
+                &t.model,
+                &st,
+                &samples,
+                DiffusePrior::NONE,
+                Hypotheses::default(),
+            )
+            .iter()
+            .map(|e| e.metallic)
+            .collect()
         };
         let run = |pull: Option<SigmaPull>| {
             let mut t = tr.clone();
@@ -844,7 +840,7 @@ mod tests {
             carried: Some(&tr.model),
             ..Hypotheses::default()
         };
-        for e in evaluate(&tr.model, &st, &samples, Prior::NONE, with) {
+        for e in evaluate(&tr.model, &st, &samples, DiffusePrior::NONE, with) {
             let (sigma, m, obj) = e.carried.unwrap();
             assert_eq!((sigma, m, obj), (e.sigma, e.metallic, e.own));
         }
@@ -906,7 +902,13 @@ mod tests {
         assert!(data.candidates.is_empty() && full.candidates.is_empty());
         assert_eq!((data.lambda_d, full.lambda_d), (0.0, lambda_d as f64));
         let samples = sample(&st, 64);
-        let want = evaluate(&tr.model, &st, &samples, Prior::NONE, Hypotheses::default());
+        let want = evaluate(
+            &tr.model,
+            &st,
+            &samples,
+            DiffusePrior::NONE,
+            Hypotheses::default(),
+        );
         let mat = |s: &SegmentSample| tr.model.material(&st.batch(&s.idx).x_unit);
         for ((d, f), (s, w)) in data
             .segments

@@ -65,7 +65,7 @@ pub fn landscape(
     ds: &Dataset,
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
-    (lambda_d, prior_sigma): (f32, f32),
+    prior: fipt_core::model::loss::DiffusePrior,
     fitted: Option<&[ViewMaps]>,
     margin: usize,
 ) -> Vec<PartLandscape> {
@@ -147,8 +147,7 @@ pub fn landscape(
             for (i, &sig) in sweep.iter().enumerate() {
                 let c = factorised_render(kd.to_array(), ks.to_array(), sig, s);
                 row.data[i] += err(c, gt);
-                row.prior[i] +=
-                    fipt_core::model::loss::diffuse_prior(sig, m, lambda_d, prior_sigma) as f64;
+                row.prior[i] += prior.at(sig, m) as f64;
             }
             if let (Some(f), Some(maps)) = (row.fitted.as_mut(), fitted) {
                 let mp = &maps[k];

@@ -40,13 +40,19 @@ pub fn landscapes(
     };
     let maps = maps.as_deref();
     let (baked, _) = bake::bake_cached(out, ds, &ctx.accel, &ctx.bake_cfg, ctx.progress())?;
-    // Each table's prior is the λ_d (and σ₀) of the fit on those shadings (round 0's for the baked and
-    // the oracle shadings, round r's for `refine{r}.bin`).
-    let lambda = |r: usize| (cfg.train_for_round(r).lambda_d, cfg.train.prior_sigma);
+    // Each table's prior is that of the fit on those shadings (round 0's for the baked and the
+    // oracle shadings, round r's for `refine{r}.bin`).
+    let prior = |r: usize| {
+        let t = cfg.train_for_round(r);
+        fipt_core::model::loss::DiffusePrior {
+            lambda_d: t.lambda_d,
+            sigma: t.prior_sigma,
+        }
+    };
     let margin = cfg.refine.emitter_margin;
     let mut tables = vec![(
         "baked".to_string(),
-        landscape(ds, &baked.hits, &baked.shadings, lambda(0), maps, margin),
+        landscape(ds, &baked.hits, &baked.shadings, prior(0), maps, margin),
     )];
     let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
     for r in 1.. {
@@ -56,14 +62,14 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            landscape(ds, &baked.hits, &s, lambda(r), maps, margin),
+            landscape(ds, &baked.hits, &s, prior(r), maps, margin),
         ));
     }
     if oracle {
         let s = refine::oracle_cached(&ctx, &baked)?;
         tables.push((
             "oracle".to_string(),
-            landscape(ds, &baked.hits, &s, lambda(0), maps, margin),
+            landscape(ds, &baked.hits, &s, prior(0), maps, margin),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
