@@ -30,6 +30,7 @@
 use fipt_bake::Accel;
 use fipt_core::scene::ldr::{linear_to_srgb, srgb_to_linear};
 use fipt_core::scene::{Camera, LdrFrame, Mesh};
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -109,8 +110,9 @@ struct Surface {
 /// No surface (a ray that leaves the scene).
 const MISS: u64 = u64::MAX;
 
-/// The edge samples of one view; `keys` are the mesh's `plane_keys`.
+/// The edge samples of one view of `mesh`; `keys` are its `plane_keys`.
 pub fn edge_samples(
+    mesh: &Mesh,
     keys: &[u64],
     accel: &Accel,
     cam: &Camera,
@@ -119,16 +121,10 @@ pub fn edge_samples(
     let (w, h) = (cam.width, cam.height);
     let o = cam.origin_f32();
     let key_of = |hit: Option<fipt_bake::Hit>| hit.map_or(MISS, |x| keys[x.tri as usize]);
-    let centre: Vec<u64> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|row| {
-            let rays: Vec<_> = (0..w)
-                .map(|col| (o, cam.pixel_direction(row, col)))
-                .collect();
-            let mut hits = vec![None; w];
-            accel.closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
-            hits.into_iter().map(key_of).collect::<Vec<_>>()
-        })
+    let centre: Vec<u64> = fipt_bake::cast_view(accel, mesh, cam)
+        .tri
+        .iter()
+        .map(|&t| if t < 0 { MISS } else { keys[t as usize] })
         .collect();
     let at = |x: i64, y: i64| -> Option<usize> {
         (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
@@ -238,6 +234,7 @@ pub fn edge_samples(
                 if got.len() < 3 {
                     return None;
                 }
+                let plane = PlaneFit::new(&got)?;
                 let mut mean = [0.0; 3];
                 let mut ok = [true; 3];
                 for c in 0..3 {
@@ -246,7 +243,7 @@ pub fn edge_samples(
                     let clipped = got.iter().any(|&(q, _, _)| frame.clipped(q, c));
                     // v ≈ c0 + c1·dx + c2·dy by least squares, read at the side's centroid
                     // inside the pixel; a side it does not fit closely is left out.
-                    let fit = fit_plane(&got, &v)?;
+                    let fit = plane.fit(&got, &v);
                     let worst = got
                         .iter()
                         .zip(&v)
@@ -276,38 +273,31 @@ pub fn edge_samples(
         .collect()
 }
 
-/// Least squares of v ≈ c0 + c1·dx + c2·dy over the points (dx, dy); None where the points
-/// do not span a plane.
-fn fit_plane(pts: &[(usize, f64, f64)], v: &[f64]) -> Option<[f64; 3]> {
-    let mut a = [[0.0f64; 3]; 3];
-    let mut b = [0.0f64; 3];
-    for (&(_, dx, dy), &val) in pts.iter().zip(v) {
-        let r = [1.0, dx, dy];
-        for i in 0..3 {
-            for j in 0..3 {
-                a[i][j] += r[i] * r[j];
-            }
-            b[i] += r[i] * val;
-        }
+/// Least squares of v ≈ c0 + c1·dx + c2·dy over a set of points (dx, dy): the inverse of its
+/// normal matrix, shared by every channel's values.
+struct PlaneFit(DMat3);
+
+impl PlaneFit {
+    /// None where the points do not span a plane.
+    fn new(pts: &[(usize, f64, f64)]) -> Option<Self> {
+        let normal = pts.iter().fold(DMat3::ZERO, |acc, &(_, dx, dy)| {
+            let r = DVec3::new(1.0, dx, dy);
+            acc + DMat3::from_cols(r * r.x, r * r.y, r * r.z)
+        });
+        let d = normal.determinant();
+        (d.abs() >= 1e-6 * normal.x_axis.x.powi(3).max(1.0)).then(|| Self(normal.inverse()))
     }
-    let det = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(&a);
-    if d.abs() < 1e-6 * (a[0][0].powi(3)).max(1.0) {
-        return None;
+
+    /// (c0, c1, c2) for the values `v` at the points it was made from.
+    fn fit(&self, pts: &[(usize, f64, f64)], v: &[f64]) -> [f64; 3] {
+        let rhs = pts
+            .iter()
+            .zip(v)
+            .fold(DVec3::ZERO, |acc, (&(_, dx, dy), &val)| {
+                acc + DVec3::new(1.0, dx, dy) * val
+            });
+        (self.0 * rhs).to_array()
     }
-    let mut out = [0.0; 3];
-    for (k, o) in out.iter_mut().enumerate() {
-        let mut m = a;
-        for i in 0..3 {
-            m[i][k] = b[i];
-        }
-        *o = det(&m) / d;
-    }
-    Some(out)
 }
 
 /// The mean Cauchy cost of the samples' usable channels under γ.
@@ -337,7 +327,7 @@ pub fn estimate(ds: &fipt_core::scene::Dataset, accel: &Accel) -> Option<EdgeFit
         .filter_map(|v| {
             v.ldr
                 .as_ref()
-                .map(|f| edge_samples(&keys, accel, &v.camera, f))
+                .map(|f| edge_samples(&ds.mesh, &keys, accel, &v.camera, f))
         })
         .flatten()
         .collect();
