@@ -239,6 +239,9 @@ pub const FIELDS: &[Field] = &[
     f(C, "train.hop.pull", WEIGHT, "a loss weight"),
     f(C, "train.hop.pixels", int(1.0, 16777216.0), "pixels"),
     f(C, "train.hop.prior", UNIT, "a weight"),
+    f(C, "train.hop.patch", closed(0.0, 1e3), "pixel footprints (0: off)"),
+    f(C, "train.hop.patch_gain", UNIT, "a relative gain"),
+    f(C, "train.hop.patch_min_move", UNIT, "a roughness distance"),
     f(C, "emitters.samples_per_triangle", int(1.0, 1e5), "points"),
     f(C, "emitters.threshold", Range {
             hi_open: true,

@@ -500,6 +500,15 @@ pub struct HopConfig {
     /// Also score the last round's material on each segment under this round's shadings, and
     /// hop back to it where it explains the photos better (rounds after 0).
     pub carry: bool,
+    /// Also sweep σ with the base colour solved per surface patch (`pipeline::patches`), in
+    /// cubes of this many pixel footprints (0: off).
+    pub patch: f32,
+    /// Relative drop of a segment's patch objective that calls for a hop, and that the hop must
+    /// reach for its patch candidates to be kept.
+    pub patch_gain: f32,
+    /// Smallest |best σ − mean fitted σ| of the patch sweep that calls for a hop (the fit's
+    /// free colour keeps descent from nearer minima too).
+    pub patch_min_move: f32,
 }
 
 impl Default for HopConfig {
@@ -513,6 +522,9 @@ impl Default for HopConfig {
             prior: 0.0,
             metal: true,
             carry: true,
+            patch: 0.0,
+            patch_gain: 0.02,
+            patch_min_move: 0.15,
         }
     }
 }
@@ -809,9 +821,16 @@ impl HopConfig {
             ("train.hop.gain", h.gain),
             ("train.hop.min_move", h.min_move),
             ("train.hop.prior", h.prior),
+            ("train.hop.patch_gain", h.patch_gain),
+            ("train.hop.patch_min_move", h.patch_min_move),
         ] {
             check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
         }
+        check(
+            h.patch >= 0.0 && h.patch.is_finite(),
+            "train.hop.patch",
+            "must be a finite number >= 0",
+        )?;
         check(
             h.steps > 0.0 && h.steps <= 1.0,
             "train.hop.steps",

@@ -505,7 +505,14 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
                     c.sigma_after,
                     m(c.metallic_after),
                     100.0 * (c.objective_after / c.objective - 1.0),
-                    if hop.accepted { "kept" } else { "undone" }
+                    {
+                        let kept = if c.source == crate::pipeline::hop::Hypothesis::Patch {
+                            hop.patch_accepted.unwrap_or(false)
+                        } else {
+                            hop.accepted
+                        };
+                        if kept { "kept" } else { "undone" }
+                    }
                 )
             })
         })
@@ -513,7 +520,7 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
     if rows.is_empty() {
         return;
     }
-    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, or at the last round's material) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
+    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, at the last round's material, or at another σ with the colour solved per patch) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell. Patch candidates hop after the others, held at their targets, and are kept or undone on their own.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
     for r in rows {
         h.push_str(&r);
     }

@@ -91,6 +91,11 @@ pub struct SegmentObjective {
     /// its objective (`train.hop.carry`; None: round 0, or off).
     #[serde(default)]
     pub carried: Option<(f64, f64, f64)>,
+    /// With the base colour solved per patch over all the segment's pixels
+    /// (`train.hop.patch`), at one common σ and the fitted m: the best swept σ, the objective
+    /// there, and the objective at the fitted mean σ (None: not tried).
+    #[serde(default)]
+    pub patch: Option<(f64, f64, f64)>,
 }
 
 /// What proposed a hop's target.
@@ -104,6 +109,8 @@ pub enum Hypothesis {
     Metal,
     /// The last round's material (σ and m) on the segment.
     Carried,
+    /// The sweep over σ with the base colour solved per surface patch (`patches`).
+    Patch,
 }
 
 /// What a hop did: the candidates, whether the hopped model was kept (the candidates'
@@ -117,7 +124,10 @@ pub struct HopReport {
     pub objective_before: f64,
     pub objective_after: Option<f64>,
     pub accepted: bool,
-    /// Steps run (both phases).
+    /// Whether the patch candidates' hop, run after the other, was kept (None: none ran).
+    #[serde(default)]
+    pub patch_accepted: Option<bool>,
+    /// Steps run (both phases of each hop).
     pub steps: usize,
     /// The λ_d the objectives above hold (`prior` × the fit's final λ_d; 0: the data term).
     #[serde(default)]
@@ -382,6 +392,7 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                     (sigma, obj, e.uniform)
                 }),
                 carried: e.carried,
+                patch: None,
             }
         })
         .collect()
@@ -403,8 +414,13 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
         .iter()
         .filter(|c| c.before > 0.0)
         .filter_map(|c| {
-            let far = |sigma: f64, m: Option<f64>| {
-                (sigma - c.sigma).abs() >= cfg.min_move as f64
+            let far = |source: Hypothesis, sigma: f64, m: Option<f64>| {
+                let min_move = if source == Hypothesis::Patch {
+                    cfg.patch_min_move
+                } else {
+                    cfg.min_move
+                };
+                (sigma - c.sigma).abs() >= min_move as f64
                     || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
             };
             // (hypothesis, σ, m, objective, baseline)
@@ -418,30 +434,52 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
                 let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
                 options.push((Hypothesis::Carried, sigma, m, obj, c.before));
             }
+            // Dielectrics only: a metal's σ is the sweep's and the metal's to find.
+            if let Some((sigma, obj, base)) = c.patch
+                && c.metallic < 0.5
+            {
+                options.push((Hypothesis::Patch, sigma, None, obj, base));
+            }
             let gain = |obj: f64, base: f64| 1.0 - obj / base;
             options
                 .into_iter()
                 .filter(|&(source, sigma, m, obj, base)| {
+                    let needed = if source == Hypothesis::Patch {
+                        cfg.patch_gain
+                    } else {
+                        cfg.gain
+                    };
                     obj.is_finite()
                         && base > 0.0
-                        && (source == Hypothesis::Carried || far(sigma, m))
-                        && gain(obj, base) >= cfg.gain as f64
+                        && (source == Hypothesis::Carried || far(source, sigma, m))
+                        && gain(obj, base) >= needed as f64
                 })
                 .max_by(|a, b| gain(a.3, a.4).total_cmp(&gain(b.3, b.4)))
-                .map(|(source, target, target_metallic, obj, _)| HopCandidate {
-                    segment: c.segment,
-                    pixels: c.pixels,
-                    sigma: c.sigma,
-                    target,
-                    sigma_after: c.sigma,
-                    source,
-                    metallic: c.metallic,
-                    target_metallic,
-                    metallic_after: c.metallic,
-                    objective: c.before,
-                    objective_target: obj,
-                    objective_after: c.before,
-                })
+                .map(
+                    |(source, target, target_metallic, obj, base)| HopCandidate {
+                        segment: c.segment,
+                        pixels: c.pixels,
+                        sigma: c.sigma,
+                        target,
+                        sigma_after: c.sigma,
+                        source,
+                        metallic: c.metallic,
+                        target_metallic,
+                        metallic_after: c.metallic,
+                        // A patch candidate is measured in its own terms throughout.
+                        objective: if source == Hypothesis::Patch {
+                            base
+                        } else {
+                            c.before
+                        },
+                        objective_target: obj,
+                        objective_after: if source == Hypothesis::Patch {
+                            base
+                        } else {
+                            c.before
+                        },
+                    },
+                )
         })
         .collect()
 }
@@ -457,6 +495,9 @@ pub struct HopPlan<'a> {
     pub show_progress: bool,
     /// The last round's model (`train.hop.carry`; None in round 0).
     pub carried: Option<&'a FiptModel>,
+    /// A pixel's footprint in world units at the median depth (`train.hop.patch` counts its
+    /// cubes' side in these).
+    pub footprint: f32,
 }
 
 /// Tries a hop after a finished fit on `store`: returns the trainer to keep (the hopped one, or
@@ -484,7 +525,14 @@ pub fn hop(
         carried: plan.carried.filter(|_| plan.cfg.carry),
     };
     let before = evaluate(&tr.model, store, &samples, prior, with);
-    let segments = checks(&samples, &before);
+    let mut segments = checks(&samples, &before);
+    let patches =
+        (plan.cfg.patch > 0.0).then(|| PatchSegments::new(store, plan.cfg.patch * plan.footprint));
+    if let Some(p) = &patches {
+        for row in &mut segments {
+            row.patch = p.profile(&tr.model, row.segment);
+        }
+    }
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
         segments,
@@ -495,8 +543,70 @@ pub fn hop(
     if report.candidates.is_empty() {
         return Ok((tr, report));
     }
-    let kept = tr.clone();
+    // Two hops, one after the other, each kept or undone on its own: the sweep, the metal and
+    // the carried material, then the patch candidates (measured in their own terms, and held
+    // at their targets through both phases).
     let mut tr = tr;
+    let mut cands = std::mem::take(&mut report.candidates);
+    let mut after = Vec::new();
+    for patch in [false, true] {
+        let group: Vec<usize> = (0..cands.len())
+            .filter(|&k| (cands[k].source == Hypothesis::Patch) == patch)
+            .collect();
+        if group.is_empty() {
+            continue;
+        }
+        let mut chosen: Vec<HopCandidate> = group.iter().map(|&k| cands[k].clone()).collect();
+        let kept = tr.clone();
+        let (hopped, steps) = hop_phases(tr, store, plan, &chosen, patch)?;
+        tr = hopped;
+        report.steps += steps;
+        after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
+        for c in &mut chosen {
+            if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
+                c.sigma_after = after[k].sigma;
+                c.metallic_after = after[k].metallic;
+                c.objective_after = after[k].own;
+            }
+            // A patch candidate is measured as it was proposed: with the colour solved per
+            // patch.
+            if let (true, Some(p)) = (patch, &patches) {
+                c.objective_after = p.at_model(&tr.model, c.segment);
+            }
+        }
+        let helped = hop_helped(&chosen, plan.cfg);
+        if patch {
+            report.patch_accepted = Some(helped);
+        } else {
+            report.accepted = helped;
+        }
+        if !helped {
+            tr = kept;
+            after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
+        }
+        for (&k, c) in group.iter().zip(chosen) {
+            cands[k] = c;
+        }
+    }
+    report.candidates = cands;
+    for (row, a) in report.segments.iter_mut().zip(&after) {
+        row.after = Some(a.own);
+    }
+    report.objective_after = Some(whole(&samples, &after));
+    Ok((tr, report))
+}
+
+/// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
+/// names one) pulled to their targets, then as many steps again released, except with `held`
+/// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
+/// alone would take them back). Returns the hopped trainer and the steps run.
+fn hop_phases(
+    mut tr: Trainer,
+    store: &PixelStore,
+    plan: &HopPlan,
+    chosen: &[HopCandidate],
+    held: bool,
+) -> anyhow::Result<(Trainer, usize)> {
     // The fit's batch sizes and segments; draws of its own (uniform with replacement).
     let Shape {
         batch,
@@ -506,26 +616,25 @@ pub fn hop(
     } = Shape::of(store, plan.mode, plan.schedule);
     let phase = ((plan.cfg.steps as f64 * total as f64).round() as usize).max(1);
     let segments = Sampler::segments_of(store, true);
-    let mut rng = Rng::new(plan.seed, 0x40b);
+    let mut rng = Rng::new(plan.seed, if held { 0x40c } else { 0x40b });
     let ds = tr
         .device_resident()
         .then(|| DeviceStore::upload(&store.pixels, &tr.device));
     let lambda_d = tr.cfg.lambda_d;
     tr.cfg.lr = plan.schedule.lr_at(total.saturating_sub(1), total);
     tr.cfg.lambda_d = plan.lambda_d;
-    tr.pull = Some(SigmaPull {
+    let pull = SigmaPull {
         weight: plan.cfg.pull,
-        target: report
-            .candidates
+        target: chosen
             .iter()
             .map(|c| (c.segment, c.target as f32))
             .collect(),
-        metallic: report
-            .candidates
+        metallic: chosen
             .iter()
             .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
             .collect(),
-    });
+    };
+    tr.pull = Some(pull);
     let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
     let mut idx = Vec::with_capacity(batch);
     for s in 0..2 * phase {
@@ -533,7 +642,7 @@ pub fn hop(
             pb.finish_and_clear();
             return Err(e);
         }
-        if s == phase {
+        if s == phase && !held {
             tr.pull = None;
         }
         idx.clear();
@@ -544,7 +653,7 @@ pub fn hop(
             let seg = &segments[rng.below(segments.len() as u64) as usize];
             idx.push(seg[rng.below(seg.len() as u64) as usize]);
         }
-        // The loss is not logged: the decision below evaluates the objective itself.
+        // The loss is not logged: the decision evaluates the objective itself.
         drop(step_entries(&mut tr, ds.as_ref(), store, &idx, plan.mode));
         pb.inc(1);
     }
@@ -552,34 +661,98 @@ pub fn hop(
     tr.pull = None;
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
-    let after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
-    let objective_after = whole(&samples, &after);
-    for c in &mut report.candidates {
-        if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
-            c.sigma_after = after[k].sigma;
-            c.metallic_after = after[k].metallic;
-            c.objective_after = after[k].own;
-        }
-    }
-    for (row, a) in report.segments.iter_mut().zip(&after) {
-        row.after = Some(a.own);
-    }
-    report.steps = 2 * phase;
-    report.objective_after = Some(objective_after);
-    report.accepted = hop_helped(&report.candidates, plan.cfg.gain);
-    Ok(if report.accepted {
-        (tr, report)
-    } else {
-        (kept, report)
-    })
+    Ok((tr, 2 * phase))
 }
 
 /// Whether the candidates' size-weighted objective fell by at least `gain` of itself (the
 /// share that called for the hop: the extra steps alone move a segment's objective by a few
-/// per cent either way).
-fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
-    let sum = |f: fn(&HopCandidate) -> f64| c.iter().map(|c| f(c) * c.pixels as f64).sum::<f64>();
-    sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
+/// per cent either way); the patch candidates, measured with the colour solved per patch, by
+/// `patch_gain`. Where both kinds are given, both must.
+fn hop_helped(c: &[HopCandidate], cfg: &HopConfig) -> bool {
+    let fell = |patch: bool, gain: f32| {
+        let group = || {
+            c.iter()
+                .filter(|c| (c.source == Hypothesis::Patch) == patch)
+        };
+        let sum =
+            |f: fn(&HopCandidate) -> f64| group().map(|c| f(c) * c.pixels as f64).sum::<f64>();
+        group().next().is_none()
+            || sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
+    };
+    fell(false, cfg.gain) && fell(true, cfg.patch_gain)
+}
+
+/// Every segment's pixels (all of them, not the check's sample) grouped into cubes for the
+/// patch hypothesis (`patches`).
+struct PatchSegments<'a> {
+    store: &'a PixelStore,
+    /// Per segment id: its entries in the store and their cubes (indices into the entries).
+    segments: BTreeMap<i32, (Vec<u32>, Vec<Vec<u32>>)>,
+}
+
+impl<'a> PatchSegments<'a> {
+    fn new(store: &'a PixelStore, side: f32) -> Self {
+        let mut by: BTreeMap<i32, Vec<u32>> = BTreeMap::new();
+        let b = &store.pixels;
+        for (i, &s) in b.seg.iter().enumerate() {
+            // Clipped LDR pixels only bound the photo: no colour solve takes them.
+            let clipped = !b.cap.is_empty()
+                && b.cap[3 * i..3 * i + 3]
+                    .iter()
+                    .any(|&c| c < fipt_core::model::step::CAP_NONE);
+            if !clipped {
+                by.entry(s).or_default().push(i as u32);
+            }
+        }
+        let segments = by
+            .into_iter()
+            .map(|(id, idx)| {
+                let pos: Vec<[f32; 3]> = idx.iter().map(|&i| b.x_world[i as usize]).collect();
+                (id, (idx, super::patches::cubes(&pos, side.max(1e-6))))
+            })
+            .collect();
+        Self { store, segments }
+    }
+
+    /// The patch objective (mean per pixel) of segment `id`, with the model's metallic and mask,
+    /// at one common σ: each of `sweep`, then the model's mean σ over the segment (the last
+    /// value); None for a segment without pixels.
+    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
+        let (idx, cubes) = self.segments.get(&id)?;
+        let b = self.store.batch(idx);
+        let mat = model.material(&b.x_unit);
+        let alpha = model.alpha(&b.x_world);
+        let pixels: Vec<super::patches::PatchPixel> = (0..idx.len())
+            .map(|i| super::patches::PatchPixel {
+                shading: ShadingLayout::pixel(&b.shadings, i),
+                gt: [b.gt[3 * i], b.gt[3 * i + 1], b.gt[3 * i + 2]],
+                metallic: mat.metallic[i],
+                alpha: alpha[i],
+            })
+            .collect();
+        let n = idx.len().max(1) as f64;
+        let mean = (mat.sigma.iter().map(|&s| s as f64).sum::<f64>() / n) as f32;
+        Some(
+            sweep
+                .iter()
+                .chain([&mean])
+                .map(|&s| super::patches::objective(&pixels, cubes, &move |_| s) / n)
+                .collect(),
+        )
+    }
+
+    /// The segment's best swept σ, the patch objective there, and at the model's mean σ.
+    fn profile(&self, model: &FiptModel, id: i32) -> Option<(f64, f64, f64)> {
+        let mut swept = self.profile_at(model, id, &sweep())?;
+        let at_mean = swept.pop()?;
+        let (best_sigma, best) = profile_min(&swept);
+        Some((best_sigma, best, at_mean))
+    }
+
+    /// The patch objective at the model's mean σ (NaN for a segment without pixels).
+    fn at_model(&self, model: &FiptModel, id: i32) -> f64 {
+        self.profile_at(model, id, &[]).map_or(f64::NAN, |v| v[0])
+    }
 }
 
 #[cfg(test)]
@@ -600,6 +773,25 @@ mod tests {
             false,
         );
         (tr, schedule)
+    }
+
+    /// A hop plan over the toy fit's schedule, without a carried model.
+    fn toy_plan<'a>(
+        cfg: &'a HopConfig,
+        schedule: &'a TrainSection,
+        lambda_d: f32,
+        footprint: f32,
+    ) -> HopPlan<'a> {
+        HopPlan {
+            cfg,
+            mode: SegMode::Part,
+            schedule,
+            lambda_d,
+            seed: 5,
+            show_progress: false,
+            carried: None,
+            footprint,
+        }
     }
 
     fn toy_trainer(cfg: fipt_core::model::TrainConfig) -> Trainer {
@@ -887,15 +1079,7 @@ mod tests {
                 prior,
                 ..HopConfig::default()
             };
-            let plan = HopPlan {
-                cfg: &hc,
-                mode: SegMode::Part,
-                schedule: &schedule,
-                lambda_d,
-                seed: 5,
-                show_progress: false,
-                carried: None,
-            };
+            let plan = toy_plan(&hc, &schedule, lambda_d, 0.01);
             hop(tr.clone(), &st, &plan).unwrap().1
         };
         let (data, full) = (report(0.0), report(1.0));
@@ -957,15 +1141,7 @@ mod tests {
             prior: 1.0,
             ..HopConfig::default()
         };
-        let plan = HopPlan {
-            cfg: &hc,
-            mode: SegMode::Part,
-            schedule: &schedule,
-            lambda_d: 5e-4,
-            seed: 5,
-            show_progress: false,
-            carried: None,
-        };
+        let plan = toy_plan(&hc, &schedule, 5e-4, 0.01);
         let (out, rep) = hop(tr, &st, &plan).unwrap();
         assert!(!rep.candidates.is_empty());
         assert_eq!(rep.steps, 2 * 50);
@@ -990,8 +1166,107 @@ mod tests {
         }
         assert!(rep.objective_after.is_some());
         assert_eq!(rep.segments.len(), 5);
-        assert_eq!(rep.accepted, hop_helped(&rep.candidates, hc.gain));
+        assert_eq!(rep.accepted, hop_helped(&rep.candidates, &hc));
         let now = (out.model.net_params(), out.model.grid.table.clone());
         assert_eq!(now == before, !rep.accepted);
+    }
+
+    /// A patch candidate counts by its own gain and distance, and is kept by its own measure:
+    /// the patch group and the other group must each fall by their gain.
+    #[test]
+    fn patch_candidates_have_their_own_thresholds() {
+        let st = store(&[0]);
+        let samples = sample(&st, 8);
+        let cfg = HopConfig {
+            patch_gain: 0.02,
+            patch_min_move: 0.15,
+            ..HopConfig::default()
+        };
+        // The sweep is flat (no hop of its own); the patch sweep lies 0.2 away.
+        let mut rows = checks(&samples, &[eval(0.8, 1.0, 0, 1.0)]);
+        let mut with = |patch: (f64, f64, f64)| {
+            rows[0].patch = Some(patch);
+            candidates(&cfg, &rows)
+        };
+        let c = with((0.6, 0.97, 1.0));
+        assert_eq!(
+            (c.len(), c[0].source, c[0].target),
+            (1, Hypothesis::Patch, 0.6)
+        );
+        // Measured against the patch objective at the fitted σ, not the fit's own.
+        assert_eq!((c[0].objective, c[0].objective_target), (1.0, 0.97));
+        // 1 % lower: too little; 0.1 away: too near.
+        assert!(with((0.6, 0.99, 1.0)).is_empty());
+        assert!(with((0.7, 0.9, 1.0)).is_empty());
+        let cand = |source, objective, after| HopCandidate {
+            source,
+            objective,
+            objective_after: after,
+            ..c[0].clone()
+        };
+        let (p, s) = (Hypothesis::Patch, Hypothesis::Sweep);
+        assert!(hop_helped(&[cand(p, 1.0, 0.97)], &cfg));
+        assert!(!hop_helped(&[cand(p, 1.0, 0.99)], &cfg));
+        // A sweep candidate needs its 5 %, whatever the patch group gained.
+        assert!(!hop_helped(&[cand(p, 1.0, 0.5), cand(s, 1.0, 0.97)], &cfg));
+        assert!(hop_helped(&[cand(p, 1.0, 0.97), cand(s, 1.0, 0.9)], &cfg));
+    }
+
+    /// On photos rendered at σ 0.3 with one colour per cube, the patch sweep proposes σ near
+    /// 0.3 for a fit that is not there, and the hop takes the segment most of the way there.
+    #[test]
+    fn the_patch_hypothesis_finds_the_rendered_roughness() {
+        let n = 400;
+        let mut st = toy_store(n);
+        st.pixels.seg.iter_mut().for_each(|s| *s = 0);
+        let d = ShadingLayout::DIM;
+        let truth = 0.3;
+        for i in 0..n {
+            let cube = i % 4;
+            st.pixels.x_world[i] = [0.1 + cube as f32, 0.5, 0.5];
+            for j in 0..fipt_core::brdf::ROUGHNESS_LEVELS {
+                for c in 0..3 {
+                    let v = 0.2 + ((i * 7 + j * 13 + c * 5) % 11) as f32 / 11.0;
+                    st.pixels.shadings[i * d + ShadingLayout::ls0(j).start + c] = 3.0 * v;
+                    st.pixels.shadings[i * d + ShadingLayout::ls1(j).start + c] = 0.1 * v;
+                }
+            }
+            let sh = ShadingLayout::pixel(&st.pixels.shadings, i).to_vec();
+            let a = glam::Vec3::new(0.2 + 0.2 * cube as f32, 0.4, 0.3);
+            let (kd, ks) = reflectances(a, 0.0);
+            let c = factorised_render(kd.to_array(), ks.to_array(), truth, &sh);
+            st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&c);
+        }
+        let (tr, mut schedule) = toy_fitted(&st);
+        // The hop runs at the schedule's last rate: keep it at the first so 50 steps can move σ.
+        schedule.lr_end = 1.0;
+        let hc = HopConfig {
+            gain: 1.0,
+            metal: false,
+            patch: 1.0,
+            patch_gain: 0.0,
+            patch_min_move: 0.0,
+            steps: 1.0,
+            pull: 10.0,
+            ..HopConfig::default()
+        };
+        let plan = toy_plan(&hc, &schedule, 5e-4, 1.0);
+        let (_, rep) = hop(tr, &st, &plan).unwrap();
+        let (best, obj, at_fit) = rep.segments[0].patch.expect("patch profile");
+        assert!((best - truth as f64).abs() < 0.05, "best σ {best}");
+        assert!(obj < 0.5 * at_fit, "{obj} vs {at_fit}");
+        let c = &rep.candidates[0];
+        assert_eq!(c.source, Hypothesis::Patch);
+        assert!(
+            (c.sigma_after - c.target).abs() < 0.5 * (c.sigma - c.target).abs(),
+            "{} → {} for {}",
+            c.sigma,
+            c.sigma_after,
+            c.target
+        );
+        // Its own hop, with its own decision; no other hop ran.
+        assert_eq!(rep.patch_accepted, Some(hop_helped(&rep.candidates, &hc)));
+        assert!(!rep.accepted);
+        assert_eq!(rep.steps, 2 * 25);
     }
 }

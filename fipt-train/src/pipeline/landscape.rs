@@ -3,7 +3,8 @@
 //! (MSE of sRGB-encoded HDR, Eq. 15) of the factorised render with the **true** base colour and
 //! metallic and a swept roughness σ, and the diffuse prior λ_d(|σ − σ₀| + m) of Eq. 17. The
 //! minimiser of the data term over σ says what the shadings support; that of data + prior what
-//! the objective supports.
+//! the objective supports; that of the patch profile (`patch_profile`: the colour solved per
+//! surface patch instead of the true one) what a fit whose colour is free can read from them.
 //!
 //! Owns: the sweep and its table. Must not touch: shadings, training.
 
@@ -38,6 +39,12 @@ pub struct PartLandscape {
     pub render_ratio: f64,
     /// Mean data term at the true a, σ and m.
     pub loss_true: f64,
+    /// The data term at each σ_i with the base colour solved per patch (`patch_profile`), the
+    /// true m; empty where not computed.
+    #[serde(default)]
+    pub patch: Vec<f64>,
+    #[serde(default)]
+    pub argmin_patch: f64,
     /// With a fitted model's maps (`fitted`): the same sweep at its a and m, per pixel.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub fitted: Option<FittedLandscape>,
@@ -55,6 +62,33 @@ pub struct FittedLandscape {
     /// Mean data term at the fitted a and m and each swept σ.
     pub data: Vec<f64>,
     pub argmin_data: f64,
+}
+
+/// The pixels of a view that the tables take, with their part's index in `meta.parts`: those
+/// whose centre ray hits a part, off a true emitter (the Emit map) and more than `margin`
+/// pixels from one.
+fn part_pixels(
+    meta: &fipt_core::scene::meta::SceneMeta,
+    tri_part: &[usize],
+    v: &fipt_core::scene::View,
+    h: &ViewHits,
+    margin: usize,
+) -> Vec<(usize, usize)> {
+    let emit = v.map(MapKind::Emit);
+    let lit: Vec<bool> = (0..h.num_pixels())
+        .map(|p| emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0))
+        .collect();
+    let near = super::pixels::ring_around(&lit, h.width, margin);
+    (0..h.num_pixels())
+        .filter(|&p| h.tri[p] >= 0 && !lit[p] && !near[p])
+        .filter_map(|p| {
+            let part = meta
+                .parts
+                .iter()
+                .position(|x| x.id == tri_part[h.tri[p] as usize])?;
+            Some((p, part))
+        })
+        .collect()
 }
 
 /// The landscape of every part of a scene with ground truth (`scene_meta.json` and the
@@ -92,6 +126,8 @@ pub fn landscape(
             argmin_total: f64::NAN,
             render_ratio: f64::NAN,
             loss_true: 0.0,
+            patch: Vec::new(),
+            argmin_patch: f64::NAN,
             fitted: fitted.map(|_| FittedLandscape {
                 sigma: 0.0,
                 metallic: 0.0,
@@ -115,22 +151,7 @@ pub fn landscape(
         ) else {
             continue;
         };
-        let emit = v.map(MapKind::Emit);
-        let lit: Vec<bool> = (0..h.num_pixels())
-            .map(|p| emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0))
-            .collect();
-        let near = super::pixels::ring_around(&lit, h.width, margin);
-        for p in 0..h.num_pixels() {
-            if h.tri[p] < 0 || lit[p] || near[p] {
-                continue;
-            }
-            let Some(part) = meta
-                .parts
-                .iter()
-                .position(|x| x.id == tri_part[h.tri[p] as usize])
-            else {
-                continue;
-            };
+        for (p, part) in part_pixels(meta, &tri_part, v, h, margin) {
             let row = &mut rows[part];
             let a = Vec3::from(base.rgb(p));
             let m = mt.scalar(p);
@@ -193,4 +214,68 @@ pub fn landscape(
         }
     }
     rows
+}
+
+/// The data term over σ with the base colour solved per surface patch (`patches`): every
+/// part's pixels grouped into cubes of side `side` (world units) by their centre ray's hit, at
+/// the true metallic. A fit's base colour is free at every point; this profile says which σ
+/// the view dependence supports when the colour is free too. Fills `patch` and `argmin_patch`
+/// of `rows` (by part name).
+pub fn patch_profile(
+    ds: &Dataset,
+    hits: &[ViewHits],
+    shadings: &[Vec<f32>],
+    margin: usize,
+    side: f32,
+    rows: &mut [PartLandscape],
+) {
+    use super::patches::{PatchPixel, cubes, objective};
+    let Some(meta) = ds.meta.as_ref() else {
+        return;
+    };
+    let tri_part = meta.triangle_part(ds.mesh.num_triangles());
+    let mut by_part: Vec<Vec<(usize, usize)>> = vec![Vec::new(); meta.parts.len()];
+    for (k, (v, h)) in ds.train.views.iter().zip(hits).enumerate() {
+        for (p, part) in part_pixels(meta, &tri_part, v, h, margin) {
+            by_part[part].push((k, p));
+        }
+    }
+    let sweep: Vec<f32> = (0..SWEEP)
+        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
+        .collect();
+    for r in rows.iter_mut() {
+        let Some(part) = meta.parts.iter().position(|p| p.name == r.name) else {
+            continue;
+        };
+        let px = &by_part[part];
+        if px.is_empty() {
+            continue;
+        }
+        let pixels: Vec<PatchPixel> = px
+            .iter()
+            .map(|&(k, p)| {
+                let v = &ds.train.views[k];
+                let gt = &v.image.data[3 * p..3 * p + 3];
+                PatchPixel {
+                    shading: ShadingLayout::pixel(&shadings[k], p),
+                    gt: [gt[0], gt[1], gt[2]],
+                    metallic: v.map(MapKind::Metallic).map_or(0.0, |m| m.scalar(p)),
+                    alpha: 0.0,
+                }
+            })
+            .collect();
+        let positions: Vec<[f32; 3]> = px
+            .iter()
+            .map(|&(k, p)| hits[k].position[p].to_array())
+            .collect();
+        let cubes = cubes(&positions, side);
+        let n = pixels.len() as f64;
+        r.patch = sweep
+            .iter()
+            .map(|&s| objective(&pixels, &cubes, &move |_| s) / n)
+            .collect();
+        r.argmin_patch = (0..SWEEP)
+            .min_by(|&a, &b| r.patch[a].total_cmp(&r.patch[b]))
+            .map_or(f64::NAN, |j| sweep[j] as f64);
+    }
 }

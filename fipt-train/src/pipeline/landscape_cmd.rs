@@ -5,7 +5,7 @@
 //! Owns: that command's inputs and outputs. Must not touch: the sweep itself.
 
 use super::context::{RunContext, RunOptions};
-use super::landscape::{PartLandscape, landscape};
+use super::landscape::{PartLandscape, SWEEP, landscape};
 use super::{bake, refine, score};
 use crate::config::Config;
 use crate::output::write_json;
@@ -50,9 +50,21 @@ pub fn landscapes(
         }
     };
     let margin = cfg.refine.emitter_margin;
+    // The patch profile's cubes: `train.hop.patch` footprints a side (2 where the hop has none).
+    let sb = baked.light_field.scene_box;
+    let footprint = super::pixels::pixel_footprint(&ds.train, &baked.hits, &sb);
+    let per = cfg.train.hop.as_ref().map_or(0.0, |h| h.patch).max(0.0);
+    let side = (footprint * (sb.max - sb.min) as f64) as f32 * if per > 0.0 { per } else { 2.0 };
+    let with_patch = |mut rows: Vec<PartLandscape>, s: &[Vec<f32>]| {
+        super::landscape::patch_profile(ds, &baked.hits, s, margin, side, &mut rows);
+        rows
+    };
     let mut tables = vec![(
         "baked".to_string(),
-        landscape(ds, &baked.hits, &baked.shadings, prior(0), maps, margin),
+        with_patch(
+            landscape(ds, &baked.hits, &baked.shadings, prior(0), maps, margin),
+            &baked.shadings,
+        ),
     )];
     let (w, h, n) = (ds.train.width, ds.train.height, ds.train.views.len());
     for r in 1.. {
@@ -62,14 +74,14 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            landscape(ds, &baked.hits, &s, prior(r), maps, margin),
+            with_patch(landscape(ds, &baked.hits, &s, prior(r), maps, margin), &s),
         ));
     }
     if oracle {
         let s = refine::oracle_cached(&ctx, &baked)?;
         tables.push((
             "oracle".to_string(),
-            landscape(ds, &baked.hits, &s, prior(0), maps, margin),
+            with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, margin), &s),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
@@ -86,18 +98,28 @@ pub fn print_tables(tables: &[(String, Vec<PartLandscape>)]) {
     for (name, rows) in tables {
         println!("\n{name}: argmin over σ at the true a and m");
         println!(
-            "part                  pixels   σ true  m true   argmin data   argmin data+prior   render/photo"
+            "part                  pixels   σ true  m true   argmin data   argmin data+prior   render/photo  argmin patch  patch/min at .1 .2 .3 .4 .5 .6 .7 .8 .9 1"
         );
         for r in rows {
+            let mn = r.patch.iter().cloned().fold(f64::INFINITY, f64::min);
+            let at: Vec<String> = [0.1f64, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+                .iter()
+                .filter_map(|s| {
+                    let j = ((s - 0.02) / 0.98 * (SWEEP - 1) as f64).round() as usize;
+                    r.patch.get(j).map(|v| format!("{:.3}", v / mn))
+                })
+                .collect();
             println!(
-                "{:<20} {:>7}   {:>6.2}  {:>6.2}   {:>11.2}   {:>17.2}   {:>12.3}",
+                "{:<20} {:>7}   {:>6.2}  {:>6.2}   {:>11.2}   {:>17.2}   {:>12.3}  {:>6.2}  {}",
                 r.name,
                 r.pixels,
                 r.sigma_true,
                 r.m_true,
                 r.argmin_data,
                 r.argmin_total,
-                r.render_ratio
+                r.render_ratio,
+                r.argmin_patch,
+                at.join(" ")
             );
         }
         if rows.iter().any(|r| r.fitted.is_some()) {

@@ -29,6 +29,7 @@ pub mod lamps;
 pub mod landscape;
 pub mod landscape_cmd;
 pub mod outputs;
+pub mod patches;
 pub mod pixels;
 pub mod predict;
 pub mod refine;

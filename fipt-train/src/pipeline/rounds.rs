@@ -301,6 +301,7 @@ impl Rounds {
                     seed: ctx.seeds.hop(r),
                     show_progress: ctx.progress(),
                     carried: self.prev.as_ref().map(|(t, _)| &t.model),
+                    footprint: setup.footprint as f32 * (setup.scene_box.max - setup.scene_box.min),
                 };
                 let (tr, rep) = hop::hop(tr, store, &plan).map_err(|e| {
                     ctx.reword(e, &format!("during round {r}'s basin hop (it restarts)"))
