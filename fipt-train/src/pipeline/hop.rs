@@ -28,7 +28,7 @@
 //! the model maths.
 
 use super::batches::{Sampler, Shape, step_entries};
-use super::landscape::SWEEP;
+use super::landscape::sweep;
 use super::pixels::PixelStore;
 use crate::config::{HopConfig, TrainSection};
 use crate::progress::progress_bar;
@@ -132,13 +132,6 @@ pub struct HopReport {
     /// The λ_d the objectives above hold (`prior` × the fit's final λ_d; 0: the data term).
     #[serde(default)]
     pub lambda_d: f64,
-}
-
-/// The swept σ values, as the landscape's.
-fn sweep() -> Vec<f32> {
-    (0..SWEEP)
-        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
-        .collect()
 }
 
 /// One segment's pixels in the evaluation: its id, its size in the store, the entries used.
@@ -398,6 +391,16 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
         .collect()
 }
 
+/// A hypothesis's (gain, min_move): the patch hypothesis has its own (`patch_gain`,
+/// `patch_min_move`), the others share `gain` and `min_move`.
+fn thresholds(cfg: &HopConfig, source: Hypothesis) -> (f32, f32) {
+    if source == Hypothesis::Patch {
+        (cfg.patch_gain, cfg.patch_min_move)
+    } else {
+        (cfg.gain, cfg.min_move)
+    }
+}
+
 /// The segments to hop and their targets. Each hypothesis proposes a target: the sweep's best σ
 /// (m left free), a metal's best σ with m = 1 (for a segment fitted non-metallic), and the
 /// last round's mean σ and m. Each is measured against a baseline of its own kind: the sweep
@@ -415,12 +418,7 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
         .filter(|c| c.before > 0.0)
         .filter_map(|c| {
             let far = |source: Hypothesis, sigma: f64, m: Option<f64>| {
-                let min_move = if source == Hypothesis::Patch {
-                    cfg.patch_min_move
-                } else {
-                    cfg.min_move
-                };
-                (sigma - c.sigma).abs() >= min_move as f64
+                (sigma - c.sigma).abs() >= thresholds(cfg, source).1 as f64
                     || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
             };
             // (hypothesis, σ, m, objective, baseline)
@@ -444,19 +442,20 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
             options
                 .into_iter()
                 .filter(|&(source, sigma, m, obj, base)| {
-                    let needed = if source == Hypothesis::Patch {
-                        cfg.patch_gain
-                    } else {
-                        cfg.gain
-                    };
                     obj.is_finite()
                         && base > 0.0
                         && (source == Hypothesis::Carried || far(source, sigma, m))
-                        && gain(obj, base) >= needed as f64
+                        && gain(obj, base) >= thresholds(cfg, source).0 as f64
                 })
                 .max_by(|a, b| gain(a.3, a.4).total_cmp(&gain(b.3, b.4)))
-                .map(
-                    |(source, target, target_metallic, obj, base)| HopCandidate {
+                .map(|(source, target, target_metallic, obj, base)| {
+                    // A patch candidate is measured in its own terms throughout.
+                    let measured = if source == Hypothesis::Patch {
+                        base
+                    } else {
+                        c.before
+                    };
+                    HopCandidate {
                         segment: c.segment,
                         pixels: c.pixels,
                         sigma: c.sigma,
@@ -466,20 +465,11 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
                         metallic: c.metallic,
                         target_metallic,
                         metallic_after: c.metallic,
-                        // A patch candidate is measured in its own terms throughout.
-                        objective: if source == Hypothesis::Patch {
-                            base
-                        } else {
-                            c.before
-                        },
+                        objective: measured,
                         objective_target: obj,
-                        objective_after: if source == Hypothesis::Patch {
-                            base
-                        } else {
-                            c.before
-                        },
-                    },
-                )
+                        objective_after: measured,
+                    }
+                })
         })
         .collect()
 }
@@ -574,7 +564,12 @@ pub fn hop(
                 c.objective_after = p.at_model(&tr.model, c.segment);
             }
         }
-        let helped = hop_helped(&chosen, plan.cfg);
+        let kind = if patch {
+            Hypothesis::Patch
+        } else {
+            Hypothesis::Sweep
+        };
+        let helped = hop_helped(&chosen, thresholds(plan.cfg, kind).0);
         if patch {
             report.patch_accepted = Some(helped);
         } else {
@@ -623,7 +618,7 @@ fn hop_phases(
     let lambda_d = tr.cfg.lambda_d;
     tr.cfg.lr = plan.schedule.lr_at(total.saturating_sub(1), total);
     tr.cfg.lambda_d = plan.lambda_d;
-    let pull = SigmaPull {
+    tr.pull = Some(SigmaPull {
         weight: plan.cfg.pull,
         target: chosen
             .iter()
@@ -633,8 +628,7 @@ fn hop_phases(
             .iter()
             .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
             .collect(),
-    };
-    tr.pull = Some(pull);
+    });
     let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
     let mut idx = Vec::with_capacity(batch);
     for s in 0..2 * phase {
@@ -666,20 +660,10 @@ fn hop_phases(
 
 /// Whether the candidates' size-weighted objective fell by at least `gain` of itself (the
 /// share that called for the hop: the extra steps alone move a segment's objective by a few
-/// per cent either way); the patch candidates, measured with the colour solved per patch, by
-/// `patch_gain`. Where both kinds are given, both must.
-fn hop_helped(c: &[HopCandidate], cfg: &HopConfig) -> bool {
-    let fell = |patch: bool, gain: f32| {
-        let group = || {
-            c.iter()
-                .filter(|c| (c.source == Hypothesis::Patch) == patch)
-        };
-        let sum =
-            |f: fn(&HopCandidate) -> f64| group().map(|c| f(c) * c.pixels as f64).sum::<f64>();
-        group().next().is_none()
-            || sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
-    };
-    fell(false, cfg.gain) && fell(true, cfg.patch_gain)
+/// per cent either way).
+fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
+    let sum = |f: fn(&HopCandidate) -> f64| c.iter().map(|c| f(c) * c.pixels as f64).sum::<f64>();
+    sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
 }
 
 /// Every segment's pixels (all of them, not the check's sample) grouped into cubes for the
@@ -758,6 +742,7 @@ impl<'a> PatchSegments<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pipeline::landscape::SWEEP;
     use crate::pipeline::test_data::{store, toy_fit, toy_store};
     use fipt_core::scene::SceneBox;
 
@@ -1166,13 +1151,13 @@ mod tests {
         }
         assert!(rep.objective_after.is_some());
         assert_eq!(rep.segments.len(), 5);
-        assert_eq!(rep.accepted, hop_helped(&rep.candidates, &hc));
+        assert_eq!(rep.accepted, hop_helped(&rep.candidates, hc.gain));
         let now = (out.model.net_params(), out.model.grid.table.clone());
         assert_eq!(now == before, !rep.accepted);
     }
 
-    /// A patch candidate counts by its own gain and distance, and is kept by its own measure:
-    /// the patch group and the other group must each fall by their gain.
+    /// A patch candidate counts by its own gain and distance, and is kept by its own measure and
+    /// gain; the other hypotheses keep theirs.
     #[test]
     fn patch_candidates_have_their_own_thresholds() {
         let st = store(&[0]);
@@ -1205,11 +1190,13 @@ mod tests {
             ..c[0].clone()
         };
         let (p, s) = (Hypothesis::Patch, Hypothesis::Sweep);
-        assert!(hop_helped(&[cand(p, 1.0, 0.97)], &cfg));
-        assert!(!hop_helped(&[cand(p, 1.0, 0.99)], &cfg));
-        // A sweep candidate needs its 5 %, whatever the patch group gained.
-        assert!(!hop_helped(&[cand(p, 1.0, 0.5), cand(s, 1.0, 0.97)], &cfg));
-        assert!(hop_helped(&[cand(p, 1.0, 0.97), cand(s, 1.0, 0.9)], &cfg));
+        let kept =
+            |c: HopCandidate| hop_helped(std::slice::from_ref(&c), thresholds(&cfg, c.source).0);
+        assert!(kept(cand(p, 1.0, 0.97)));
+        assert!(!kept(cand(p, 1.0, 0.99)));
+        // A sweep candidate needs its 5 %, where a patch candidate's 2 % would do.
+        assert!(!kept(cand(s, 1.0, 0.97)));
+        assert!(kept(cand(s, 1.0, 0.9)));
     }
 
     /// On photos rendered at σ 0.3 with one colour per cube, the patch sweep proposes σ near
@@ -1265,7 +1252,10 @@ mod tests {
             c.target
         );
         // Its own hop, with its own decision; no other hop ran.
-        assert_eq!(rep.patch_accepted, Some(hop_helped(&rep.candidates, &hc)));
+        assert_eq!(
+            rep.patch_accepted,
+            Some(hop_helped(&rep.candidates, hc.patch_gain))
+        );
         assert!(!rep.accepted);
         assert_eq!(rep.steps, 2 * 25);
     }

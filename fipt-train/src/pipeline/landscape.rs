@@ -20,6 +20,13 @@ use super::predict::ViewMaps;
 /// Roughness values swept.
 pub const SWEEP: usize = 50;
 
+/// The swept σ values: σ_i = 0.02 + 0.98·i/(SWEEP − 1).
+pub fn sweep() -> Vec<f32> {
+    (0..SWEEP)
+        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
+        .collect()
+}
+
 /// One part's landscape.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PartLandscape {
@@ -107,9 +114,7 @@ pub fn landscape(
         return Vec::new();
     };
     let tri_part = meta.triangle_part(ds.mesh.num_triangles());
-    let sweep: Vec<f32> = (0..SWEEP)
-        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
-        .collect();
+    let sweep = sweep();
     let mut sums = vec![(0f64, 0f64); meta.parts.len()];
     let mut rows: Vec<PartLandscape> = meta
         .parts
@@ -240,9 +245,7 @@ pub fn patch_profile(
             by_part[part].push((k, p));
         }
     }
-    let sweep: Vec<f32> = (0..SWEEP)
-        .map(|i| 0.02 + 0.98 * i as f32 / (SWEEP - 1) as f32)
-        .collect();
+    let sweep = sweep();
     for r in rows.iter_mut() {
         let Some(part) = meta.parts.iter().position(|p| p.name == r.name) else {
             continue;
