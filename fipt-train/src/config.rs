@@ -50,8 +50,8 @@ pub struct RefineSection {
     /// term, the reference).
     pub lambda_m: Option<f32>,
     /// The fits on refined shadings (and the refinement's material cache) leave out the pixels
-    /// within this many pixels of one that shows an extracted emitter (0, the default and the
-    /// reference's: none); `pipeline::pixels::near_emitters`.
+    /// within this many pixels of one that shows an extracted emitter (0: none, the
+    /// reference's); `pipeline::pixels::near_emitters`.
     pub emitter_margin: usize,
     /// The path-traced estimators.
     pub paths: RefineConfig,
@@ -70,8 +70,9 @@ impl Default for RefineSection {
             lambda_d: Some(1e-4),
             lambda_d_warmup: None,
             lambda_m: None,
-            // The reference's: every pixel (`docs/suite.md` measures 1).
-            emitter_margin: 0,
+            // The pixels next to the emitters left out (the reference keeps every pixel);
+            // `docs/departures/emitter-margin.md`.
+            emitter_margin: 1,
             paths: RefineConfig {
                 samples: fipt_bake::integrators::bake::BakeSamples {
                     diffuse: 64,
@@ -79,6 +80,9 @@ impl Default for RefineSection {
                 },
                 light_samples: 32,
                 observed_sides: true,
+                // The sharp lobes (levels 0 and 1) left unfiltered, as the bake leaves them
+                // (the reference filters all six); `docs/departures/bake-filter.md`.
+                filter: fipt_bake::filter::FilterConfig::default(),
                 ..RefineConfig::default()
             },
         }
@@ -223,8 +227,7 @@ pub struct TrainSection {
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
-    /// σ₀ of Eq. 17: the roughness its prior pulls every point towards (1: the paper's;
-    /// `docs/suite.md` measures 0.75–0.9).
+    /// σ₀ of Eq. 17: the roughness its prior pulls every point towards (1: the paper's).
     pub prior_sigma: f32,
     pub lambda_part: f32,
     /// Soft bound on the σ and m logits (`loss::logit_bound_loss`; null: none, the reference).
@@ -263,7 +266,9 @@ impl Default for TrainSection {
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
-            prior_sigma: 1.0,
+            // Eq. 17's σ₀ inside the range of rough walls (the paper's is 1);
+            // `docs/departures/prior-sigma.md`.
+            prior_sigma: 0.9,
             lambda_part: 5e-3,
             logit_bound: Some(5.0),
             lambda_logit: 1e-3,
@@ -522,8 +527,8 @@ impl Default for HopConfig {
             prior: 0.0,
             metal: true,
             carry: true,
-            patch: 0.0,
-            patch_gain: 0.02,
+            patch: 2.0,
+            patch_gain: 0.01,
             patch_min_move: 0.15,
         }
     }

@@ -92,7 +92,7 @@ pub struct SegmentObjective {
     #[serde(default)]
     pub carried: Option<(f64, f64, f64)>,
     /// With the base colour solved per patch over all the segment's pixels
-    /// (`train.hop.patch`), at one common σ and the fitted m: the best swept σ, the objective
+    /// (`train.hop.patch`), at one common σ as a dielectric: the best swept σ, the objective
     /// there, and the objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
@@ -698,9 +698,10 @@ impl<'a> PatchSegments<'a> {
         Self { store, segments }
     }
 
-    /// The patch objective (mean per pixel) of segment `id`, with the model's metallic and mask,
-    /// at one common σ: each of `sweep`, then the model's mean σ over the segment (the last
-    /// value); None for a segment without pixels.
+    /// The patch objective (mean per pixel) of segment `id` as a dielectric (m = 0: the
+    /// hypothesis is a dielectric of one σ) under the model's mask, at one common σ: each of
+    /// `sweep`, then the model's mean σ over the segment (the last value); None for a segment
+    /// without pixels.
     fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
         let (idx, cubes) = self.segments.get(&id)?;
         let b = self.store.batch(idx);
@@ -710,7 +711,7 @@ impl<'a> PatchSegments<'a> {
             .map(|i| super::patches::PatchPixel {
                 shading: ShadingLayout::pixel(&b.shadings, i),
                 gt: [b.gt[3 * i], b.gt[3 * i + 1], b.gt[3 * i + 2]],
-                metallic: mat.metallic[i],
+                metallic: 0.0,
                 alpha: alpha[i],
             })
             .collect();
@@ -1060,6 +1061,7 @@ mod tests {
             // gain 1: no segment can gain it all, so nothing hops.
             let hc = HopConfig {
                 gain: 1.0,
+                patch_gain: 1.0,
                 pixels: 64,
                 prior,
                 ..HopConfig::default()
@@ -1124,6 +1126,8 @@ mod tests {
             pull: 10.0,
             pixels: 64,
             prior: 1.0,
+            // The sweep's hop alone.
+            patch: 0.0,
             ..HopConfig::default()
         };
         let plan = toy_plan(&hc, &schedule, 5e-4, 0.01);
