@@ -260,6 +260,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "refine.paths.samples.specular[]", SAMPLES, "paths per pixel"),
     f(C, "refine.paths.max_depth", int(2.0, 64.0), "segments"),
     f(C, "refine.paths.cache_roughness", closed(0.0, 2.0), "σ; above 1: no cache"),
+    f(C, "refine.paths.cache_margin", int(0.0, 8.0), "pixels around an emitter's"),
     f(C, "refine.paths.light_samples", int(0.0, 4096.0), "per pixel"),
     f(C, "refine.paths.filter.radius", int(0.0, 32.0), "pixels; 0: no filter"),
     f(C, "refine.paths.filter.sigma_px", FILTER_PX, "pixels"),

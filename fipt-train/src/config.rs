@@ -80,6 +80,9 @@ impl Default for RefineSection {
                 },
                 light_samples: 32,
                 observed_sides: true,
+                // L′ without the pixels on and next to the emitters as the refinement's
+                // radiance cache (the reference keeps them); `docs/departures/cache-margin.md`.
+                cache_margin: 1,
                 // The sharp lobes (levels 0 and 1) left unfiltered, as the bake leaves them
                 // (the reference filters all six); `docs/departures/bake-filter.md`.
                 filter: fipt_bake::filter::FilterConfig::default(),

@@ -186,12 +186,14 @@ pub struct BakeView<'a> {
 }
 
 /// Builds L′ from the training views' pixel-centre hits and HDR values, its holes filled with
-/// `rings` rings on the surface of `mesh`.
+/// `rings` rings on the surface of `mesh`. Pixels `p` of view `k` with `left_out(k, p)` add
+/// nothing to it (the scene box still spans every hit).
 pub fn build_light_field(
     views: &[BakeView],
     mesh: &fipt_core::scene::Mesh,
     res: usize,
     rings: usize,
+    left_out: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> LightField {
     let triangles: Vec<[Vec3; 3]> = (0..mesh.num_triangles()).map(|t| mesh.corners(t)).collect();
     let sb = fipt_core::scene::SceneBox::from_points(views.iter().flat_map(|v| {
@@ -209,9 +211,9 @@ pub fn build_light_field(
             rings,
             surface: Some(&triangles),
         },
-        views.iter().flat_map(|v| {
+        views.iter().enumerate().flat_map(|(k, v)| {
             (0..v.hits.num_pixels())
-                .filter(|&p| v.hits.tri[p] >= 0)
+                .filter(move |&p| v.hits.tri[p] >= 0 && !left_out(k, p))
                 .map(|p| {
                     (
                         v.hits.position[p],
@@ -477,9 +479,17 @@ pub(crate) mod tests {
         }
     }
 
-    /// Same seed → bit-identical shadings whatever the thread count.
-    #[test]
-    fn bake_is_deterministic_across_thread_counts() {
+    /// The procedural room, its accelerator, a `w`×`h` camera looking across it and that
+    /// camera's pixel-centre hits.
+    fn room_view(
+        w: usize,
+        h: usize,
+    ) -> (
+        fipt_core::scene::procedural::PartMesh,
+        Accel,
+        fipt_core::scene::Camera,
+        ViewHits,
+    ) {
         use fipt_core::scene::{Camera, procedural};
         use glam::DVec3;
         let room = procedural::room(Vec3::new(5.0, 2.7, 4.0), 1);
@@ -489,10 +499,51 @@ pub(crate) mod tests {
             DVec3::new(3.0, 1.0, 3.0),
             DVec3::Y,
             1.2,
-            24,
-            18,
+            w,
+            h,
         );
         let hits = crate::accel::raycast::cast_view(&accel, &room.mesh, &cam);
+        (room, accel, cam, hits)
+    }
+
+    /// Left-out pixels add nothing to L′: a bright square of pixels (100, as next to an
+    /// emitter) raises the voxels it hits when kept; left out, every voxel holds at most the
+    /// other pixels' value (1) and the scene box is the same.
+    #[test]
+    fn left_out_pixels_add_nothing_to_the_light_field() {
+        let (room, _, cam, hits) = room_view(32, 24);
+        let bright = |p: usize| (10..16).contains(&(p % 32)) && (8..14).contains(&(p / 32));
+        let image: Vec<f32> = (0..hits.num_pixels() * 3)
+            .map(|i| if bright(i / 3) { 100.0 } else { 1.0 })
+            .collect();
+        let views = [BakeView {
+            hits: &hits,
+            image: &image,
+            focal: cam.fx as f32,
+        }];
+        let kept = build_light_field(&views, &room.mesh, 32, 8, &|_, _| false);
+        let left = build_light_field(&views, &room.mesh, 32, 8, &|_, p| bright(p));
+        assert_eq!(kept.scene_box, left.scene_box);
+        let at = |lf: &LightField| -> f32 {
+            (0..hits.num_pixels())
+                .filter(|&p| hits.tri[p] >= 0)
+                .map(|p| lf.query(hits.position[p], hits.normal[p]).max_element())
+                .fold(0.0, f32::max)
+        };
+        assert!(at(&kept) > 10.0, "kept: {}", at(&kept));
+        assert!(at(&left) <= 1.0 + 1e-5, "left out: {}", at(&left));
+        assert!(
+            (0..hits.num_pixels())
+                .filter(|&p| hits.tri[p] >= 0)
+                .all(|p| left.query(hits.position[p], hits.normal[p]).max_element() > 0.0),
+            "the left-out pixels' voxels are filled from their neighbours"
+        );
+    }
+
+    /// Same seed → bit-identical shadings whatever the thread count.
+    #[test]
+    fn bake_is_deterministic_across_thread_counts() {
+        let (room, accel, cam, hits) = room_view(24, 18);
         let image: Vec<f32> = (0..hits.num_pixels() * 3)
             .map(|i| (i % 7) as f32 * 0.1)
             .collect();
@@ -501,7 +552,7 @@ pub(crate) mod tests {
             image: &image,
             focal: cam.fx as f32,
         }];
-        let lf = build_light_field(&views, &room.mesh, 32, 1);
+        let lf = build_light_field(&views, &room.mesh, 32, 1, &|_, _| false);
         let cfg = BakeConfig {
             voxel_res: 32,
             samples: BakeSamples {

@@ -39,6 +39,12 @@ pub struct RefineConfig {
     pub max_depth: usize,
     /// Secondary hits rougher than this return L′ (reference: 0.6; > 1 turns the cache off).
     pub cache_roughness: f32,
+    /// The training pixels within this many pixels (the 8-neighbourhood, repeated) of one
+    /// that shows an emitter, and those that show one, leave L′ before it serves as the
+    /// radiance cache (0: every pixel, the reference). The ring's footprint takes in part of
+    /// the emitter, so it would light the scene as a ring of emitter around each one. Applied
+    /// by the caller that builds L′.
+    pub cache_margin: usize,
     /// BRDF sampling at path vertices (reference: `half`).
     pub lobe: LobeChoice,
     /// Light samples per pixel at the first hit x, shared by all 13 estimators and combined
@@ -67,6 +73,7 @@ impl Default for RefineConfig {
             },
             max_depth: 7,
             cache_roughness: 0.6,
+            cache_margin: 0,
             lobe: LobeChoice::Half,
             light_samples: 0,
             observed_sides: false,

@@ -83,6 +83,7 @@ pub fn refine(scene: &Path, run: &Path, as_json: bool, views: usize) -> Result<(
             ds: &ds,
             accel: &accel,
             baked: &baked,
+            light_field: &baked.light_field,
             cfg: &rcfg,
             views: &picked,
             material_cache: cache,

@@ -39,7 +39,7 @@ pub fn bake(
 ) -> anyhow::Result<Baked> {
     let hits = cast_split(accel, mesh, train);
     let views = train_views(train, &hits);
-    let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings);
+    let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings, &|_, _| false);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
     // Ctrl-C stops after the current view (`interrupt`).
     let baked = bake_views(accel, &light_field, &views, cfg, &|_| {
@@ -74,7 +74,10 @@ pub fn bake_cached(
     if let Some(shadings) = crate::cache::load_or_discard(&path, key, ds.train.views.len(), w, h)? {
         let hits = cast_split(accel, &ds.mesh, &ds.train);
         let views: Vec<BakeView> = train_views(&ds.train, &hits);
-        let light_field = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings);
+        let light_field =
+            build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|_, _| {
+                false
+            });
         drop(views);
         return Ok((
             Baked {
@@ -89,6 +92,20 @@ pub fn bake_cached(
     let baked = bake(accel, &ds.mesh, &ds.train, cfg, show_progress)?;
     crate::cache::save(&path, key, w, h, &baked.shadings)?;
     Ok((baked, false))
+}
+
+/// L′ rebuilt from the training photos without the pixels of `left_out` (per view), on the
+/// same grid and scene box, its holes filled as the bake's.
+pub fn light_field_without(
+    ds: &fipt_core::scene::Dataset,
+    baked: &Baked,
+    cfg: &BakeConfig,
+    left_out: &[Vec<bool>],
+) -> LightField {
+    let views = train_views(&ds.train, &baked.hits);
+    build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|k, p| {
+        left_out[k][p]
+    })
 }
 
 fn train_views<'a>(train: &'a Split, hits: &'a [ViewHits]) -> Vec<BakeView<'a>> {

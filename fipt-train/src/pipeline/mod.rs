@@ -77,11 +77,11 @@ pub fn run_with(scene: &Path, out: &Path, cfg: &Config, opts: &RunOptions) -> Re
     crate::output::write_json(&out.join("config.json"), cfg)?;
 
     // (1) Bake L′ and the shadings (with `oracle`: path-trace them with the true scene).
-    let (baked, bake_from_cache) = shadings(&mut ctx)?;
+    let (mut baked, bake_from_cache) = shadings(&mut ctx)?;
 
     // (2) Fit the material field and the emission mask; (3) extract the emitters; (4) refine
     // the shadings by path tracing with the current estimate and fit again, round by round.
-    let (setup, mut fitted) = rounds::run_rounds(&mut ctx, &baked, ck)?;
+    let (setup, mut fitted) = rounds::run_rounds(&mut ctx, &mut baked, ck)?;
 
     // (5) Predict and score the maps of every view; re-render and relight the val views.
     let scores = outputs::maps(&mut ctx, &baked, &mut fitted)?;

@@ -156,10 +156,36 @@ pub fn near_emitters(
     is_emitter: impl Fn(i32) -> bool,
     margin: usize,
 ) -> Vec<Vec<bool>> {
+    emitter_masks(hits, is_emitter, margin, false)
+}
+
+/// Per view, the pixels whose centre ray hit an emitter triangle (`is_emitter`) and those
+/// within `margin` pixels of one (`near_emitters`).
+pub fn on_or_near_emitters(
+    hits: &[ViewHits],
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+) -> Vec<Vec<bool>> {
+    emitter_masks(hits, is_emitter, margin, true)
+}
+
+/// The ring of `margin` pixels around the emitter pixels of each view, with the emitter pixels
+/// themselves where `with_on`.
+fn emitter_masks(
+    hits: &[ViewHits],
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+    with_on: bool,
+) -> Vec<Vec<bool>> {
     hits.iter()
         .map(|h| {
             let on: Vec<bool> = h.tri.iter().map(|&t| t >= 0 && is_emitter(t)).collect();
-            ring_around(&on, h.width, margin)
+            let ring = ring_around(&on, h.width, margin);
+            if with_on {
+                on.iter().zip(ring).map(|(a, b)| *a || b).collect()
+            } else {
+                ring
+            }
         })
         .collect()
 }
@@ -256,6 +282,17 @@ mod tests {
         // The counts: 8 around the inner pixel and 3 at the corner for one pixel of margin.
         assert_eq!(near(1)[0].iter().filter(|b| **b).count(), 8 + 3);
         assert!(near(0)[0].iter().all(|b| !b));
+        // With the emitter pixels themselves: the ring and the two pixels.
+        for m in 0..4 {
+            let both = on_or_near_emitters(&v, |t| t == 9, m);
+            let want: Vec<bool> = ring(m)
+                .iter()
+                .zip(&tri)
+                .map(|(r, &t)| *r || t == 9)
+                .collect();
+            assert_eq!(both[0], want, "margin {m}");
+            assert!(both[1].iter().all(|b| !b));
+        }
     }
 
     #[test]

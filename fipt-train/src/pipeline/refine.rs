@@ -16,6 +16,7 @@ use fipt_bake::Accel;
 use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathScene, PathStats, RadianceCache};
 use fipt_bake::integrators::refine::{RefineConfig, refine_view};
+use fipt_bake::lightfield::LightField;
 use fipt_bake::materials::{MaterialSource, SurfaceMaterial, VoxelMaterials};
 use fipt_core::io::Fnv64;
 use fipt_core::model::FiptModel;
@@ -70,6 +71,9 @@ pub struct RefineJob<'a> {
     pub ds: &'a Dataset,
     pub accel: &'a Accel,
     pub baked: &'a Baked,
+    /// The radiance cache's L′ (the bake's, or rebuilt without the pixels next to the
+    /// emitters: `RefineConfig::cache_margin`).
+    pub light_field: &'a LightField,
     pub cfg: &'a RefineConfig,
     /// Train view indices (all of them in `run`).
     pub views: &'a [usize],
@@ -106,7 +110,7 @@ pub fn refine(
             .iter()
             .map(|p| Vec3::from(*p))
             .collect();
-        let lf = &job.baked.light_field;
+        let lf = job.light_field;
         VoxelMaterials::build(
             lf.scene_box,
             lf.res,
@@ -154,7 +158,7 @@ pub fn refine_with(
         materials,
         emitters: lights,
         cache: Some(RadianceCache {
-            light_field: &baked.light_field,
+            light_field: job.light_field,
             min_roughness: cfg.cache_roughness,
         }),
     };
@@ -224,10 +228,30 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
         return Ok(s);
     }
     let all: Vec<usize> = (0..ds.train.views.len()).collect();
+    // The cache's L′ without the pixels next to the true emitters, as the refinement's leaves
+    // out those next to the extracted ones.
+    let rebuilt: Option<LightField> = match (&ds.meta, rcfg.cache_margin) {
+        (Some(meta), m) if m > 0 => {
+            let emission = meta.triangle_emission(ds.mesh.num_triangles());
+            let near = super::pixels::on_or_near_emitters(
+                &baked.hits,
+                |t| emission[t as usize].iter().any(|&c| c > 0.0),
+                m,
+            );
+            Some(super::bake::light_field_without(
+                ds,
+                baked,
+                &ctx.bake_cfg,
+                &near,
+            ))
+        }
+        _ => None,
+    };
     let job = RefineJob {
         ds,
         accel: &ctx.accel,
         baked,
+        light_field: rebuilt.as_ref().unwrap_or(&baked.light_field),
         cfg: &rcfg,
         views: &all,
         material_cache: false,

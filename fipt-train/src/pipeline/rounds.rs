@@ -88,6 +88,8 @@ pub struct Rounds {
     work: RoundWork,
     /// Whether the pixels next to the emitters have left the store (`refine.emitter_margin`).
     margin_applied: bool,
+    /// Whether L′ has been rebuilt without them (`refine.paths.cache_margin`).
+    cache_rebuilt: bool,
 }
 
 /// What the rounds leave: the last fit and the emitters.
@@ -164,6 +166,7 @@ impl Rounds {
             first,
             work: RoundWork::default(),
             margin_applied: false,
+            cache_rebuilt: false,
         }
     }
 
@@ -195,6 +198,34 @@ impl Rounds {
         }
     }
 
+    /// Once the emitters are known, once: L′ rebuilt without the training pixels within
+    /// `refine.paths.cache_margin` of one that shows an extracted emitter. Their footprint
+    /// takes in part of the emitter; kept, they light the scene as a ring of emitter around
+    /// each one wherever a path ends in the radiance cache. The emitters' own pixels leave with
+    /// them, so that the hole filling carries no emitter radiance back into the ring. The
+    /// refinement, the renders and the saved scene model use the rebuilt L′; round 0's bake
+    /// used the whole one.
+    pub fn rebuild_cache(&mut self, ctx: &RunContext, baked: &mut Baked) {
+        let margin = ctx.cfg.refine.paths.cache_margin;
+        if self.cache_rebuilt || margin == 0 {
+            return;
+        }
+        let Some(em) = &self.emitters else { return };
+        self.cache_rebuilt = true;
+        let mut lit = vec![false; ctx.ds.mesh.num_triangles()];
+        for e in em {
+            lit[e.triangle as usize] = true;
+        }
+        let near = pixels::on_or_near_emitters(&baked.hits, |t| lit[t as usize], margin);
+        let gone: usize = near.iter().map(|v| v.iter().filter(|b| **b).count()).sum();
+        baked.light_field = super::bake::light_field_without(&ctx.ds, baked, &ctx.bake_cfg, &near);
+        if ctx.progress() {
+            eprintln!(
+                "left {gone} pixels on and next to the emitters out of L′ (refine.paths.cache_margin {margin})"
+            );
+        }
+    }
+
     /// (4) Round `r`'s shadings, path-traced with the last fit and the emitters (from the
     /// refinement cache when the same model made them before), into the pixel store.
     pub fn refine(
@@ -219,6 +250,7 @@ impl Rounds {
                         ds: &ctx.ds,
                         accel: &ctx.accel,
                         baked,
+                        light_field: &baked.light_field,
                         cfg: &rcfg,
                         views: &all,
                         material_cache: true,
@@ -455,7 +487,7 @@ impl Rounds {
 /// fit, extract (round 0), score.
 pub fn run_rounds(
     ctx: &mut RunContext,
-    baked: &Baked,
+    baked: &mut Baked,
     ck: Checkpoints,
 ) -> Result<(FitSetup, Fitted)> {
     let setup = FitSetup::new(ctx, baked)?;
@@ -467,6 +499,7 @@ pub fn run_rounds(
             PixelStore::gather(&ctx.ds.train, baked, &setup.scene_box, setup.mode)
         });
         if r > 0 {
+            rounds.rebuild_cache(ctx, baked);
             rounds.leave_out_near_emitters(ctx, baked, st);
             rounds.refine(ctx, baked, st, r)?;
         }
@@ -477,6 +510,10 @@ pub fn run_rounds(
         rounds.close(ctx, &setup, baked, r, fitted)?;
     }
     drop(store);
+    // Every round restored from the checkpoint: the renders still get the rebuilt L′.
+    if setup.last_round > 0 {
+        rounds.rebuild_cache(ctx, baked);
+    }
     Ok((setup, rounds.finish()?))
 }
 
