@@ -44,9 +44,7 @@ fn gt_render_of_baked_shadings_matches_images() {
             focal: v.camera.fx as f32,
         })
         .collect();
-    let lf = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|_, _| {
-        false
-    });
+    let lf = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings);
     let picked: Vec<usize> = (0..views.len()).step_by(3).collect();
     let subset: Vec<BakeView> = picked
         .iter()

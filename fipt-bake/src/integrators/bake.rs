@@ -186,9 +186,19 @@ pub struct BakeView<'a> {
 }
 
 /// Builds L′ from the training views' pixel-centre hits and HDR values, its holes filled with
-/// `rings` rings on the surface of `mesh`. Pixels `p` of view `k` with `left_out(k, p)` add
-/// nothing to it (the scene box still spans every hit).
+/// `rings` rings on the surface of `mesh`.
 pub fn build_light_field(
+    views: &[BakeView],
+    mesh: &fipt_core::scene::Mesh,
+    res: usize,
+    rings: usize,
+) -> LightField {
+    build_light_field_without(views, mesh, res, rings, &|_, _| false)
+}
+
+/// `build_light_field` without the pixels `p` of view `k` where `left_out(k, p)`: they add
+/// nothing to L′ (the scene box still spans every hit).
+pub fn build_light_field_without(
     views: &[BakeView],
     mesh: &fipt_core::scene::Mesh,
     res: usize,
@@ -521,8 +531,8 @@ pub(crate) mod tests {
             image: &image,
             focal: cam.fx as f32,
         }];
-        let kept = build_light_field(&views, &room.mesh, 32, 8, &|_, _| false);
-        let left = build_light_field(&views, &room.mesh, 32, 8, &|_, p| bright(p));
+        let kept = build_light_field(&views, &room.mesh, 32, 8);
+        let left = build_light_field_without(&views, &room.mesh, 32, 8, &|_, p| bright(p));
         assert_eq!(kept.scene_box, left.scene_box);
         let at = |lf: &LightField| -> f32 {
             (0..hits.num_pixels())
@@ -552,7 +562,7 @@ pub(crate) mod tests {
             image: &image,
             focal: cam.fx as f32,
         }];
-        let lf = build_light_field(&views, &room.mesh, 32, 1, &|_, _| false);
+        let lf = build_light_field(&views, &room.mesh, 32, 1);
         let cfg = BakeConfig {
             voxel_res: 32,
             samples: BakeSamples {

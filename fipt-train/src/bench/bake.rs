@@ -49,13 +49,7 @@ pub fn bake(as_json: bool, reps: usize) -> Result<()> {
         })
         .collect();
     let cfg = BakeConfig::default();
-    let lf = build_light_field(
-        &views,
-        &room.mesh,
-        cfg.voxel_res,
-        cfg.fill_rings,
-        &|_, _| false,
-    );
+    let lf = build_light_field(&views, &room.mesh, cfg.voxel_res, cfg.fill_rings);
     // Rays actually cast (GGX samples below the horizon cast none); the same every repetition.
     let rays = bake_views(&accel, &lf, &views, &cfg, &|_| true)
         .ok_or_else(|| anyhow::anyhow!("bake stopped"))?

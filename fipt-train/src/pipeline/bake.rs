@@ -5,7 +5,9 @@
 //! (fipt-bake) or the cache format (`cache`).
 
 use crate::progress::progress_bar;
-use fipt_bake::integrators::bake::{BakeConfig, BakeView, bake_views, build_light_field};
+use fipt_bake::integrators::bake::{
+    BakeConfig, BakeView, bake_views, build_light_field, build_light_field_without,
+};
 use fipt_bake::lightfield::LightField;
 use fipt_bake::{Accel, ViewHits, cast_view};
 use fipt_core::scene::Split;
@@ -39,7 +41,7 @@ pub fn bake(
 ) -> anyhow::Result<Baked> {
     let hits = cast_split(accel, mesh, train);
     let views = train_views(train, &hits);
-    let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings, &|_, _| false);
+    let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings);
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
     // Ctrl-C stops after the current view (`interrupt`).
     let baked = bake_views(accel, &light_field, &views, cfg, &|_| {
@@ -74,10 +76,7 @@ pub fn bake_cached(
     if let Some(shadings) = crate::cache::load_or_discard(&path, key, ds.train.views.len(), w, h)? {
         let hits = cast_split(accel, &ds.mesh, &ds.train);
         let views: Vec<BakeView> = train_views(&ds.train, &hits);
-        let light_field =
-            build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|_, _| {
-                false
-            });
+        let light_field = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings);
         drop(views);
         return Ok((
             Baked {
@@ -94,18 +93,24 @@ pub fn bake_cached(
     Ok((baked, false))
 }
 
-/// L′ rebuilt from the training photos without the pixels of `left_out` (per view), on the
-/// same grid and scene box, its holes filled as the bake's.
-pub fn light_field_without(
+/// L′ rebuilt from the training photos without the pixels that show an emitter
+/// (`is_emitter` of their triangle) and those within `margin` pixels of one
+/// (`pixels::on_or_near_emitters`), on the same grid and scene box, its holes filled as the
+/// bake's; with the number of pixels left out.
+pub fn light_field_without_emitters(
     ds: &fipt_core::scene::Dataset,
     baked: &Baked,
     cfg: &BakeConfig,
-    left_out: &[Vec<bool>],
-) -> LightField {
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+) -> (LightField, usize) {
+    let left_out = super::pixels::on_or_near_emitters(&baked.hits, is_emitter, margin);
+    let gone = left_out.iter().flatten().filter(|b| **b).count();
     let views = train_views(&ds.train, &baked.hits);
-    build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|k, p| {
+    let lf = build_light_field_without(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|k, p| {
         left_out[k][p]
-    })
+    });
+    (lf, gone)
 }
 
 fn train_views<'a>(train: &'a Split, hits: &'a [ViewHits]) -> Vec<BakeView<'a>> {

@@ -233,17 +233,8 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
     let rebuilt: Option<LightField> = match (&ds.meta, rcfg.cache_margin) {
         (Some(meta), m) if m > 0 => {
             let emission = meta.triangle_emission(ds.mesh.num_triangles());
-            let near = super::pixels::on_or_near_emitters(
-                &baked.hits,
-                |t| emission[t as usize].iter().any(|&c| c > 0.0),
-                m,
-            );
-            Some(super::bake::light_field_without(
-                ds,
-                baked,
-                &ctx.bake_cfg,
-                &near,
-            ))
+            let lit = |t: i32| emission[t as usize].iter().any(|&c| c > 0.0);
+            Some(super::bake::light_field_without_emitters(ds, baked, &ctx.bake_cfg, lit, m).0)
         }
         _ => None,
     };

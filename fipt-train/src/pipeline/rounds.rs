@@ -170,6 +170,15 @@ impl Rounds {
         }
     }
 
+    /// Per mesh triangle, whether it is an extracted emitter (None before the extraction).
+    fn emitter_triangles(&self, ctx: &RunContext) -> Option<Vec<bool>> {
+        let mut lit = vec![false; ctx.ds.mesh.num_triangles()];
+        for e in self.emitters.as_ref()? {
+            lit[e.triangle as usize] = true;
+        }
+        Some(lit)
+    }
+
     /// Before the fits on refined shadings, once: the pixels within `refine.emitter_margin`
     /// of one that shows an extracted emitter leave the store. Their footprint takes in part of
     /// the emitter, far brighter than the surface their centre ray hits.
@@ -184,11 +193,9 @@ impl Rounds {
             return;
         }
         self.margin_applied = true;
-        let Some(em) = &self.emitters else { return };
-        let mut lit = vec![false; ctx.ds.mesh.num_triangles()];
-        for e in em {
-            lit[e.triangle as usize] = true;
-        }
+        let Some(lit) = self.emitter_triangles(ctx) else {
+            return;
+        };
         let near = pixels::near_emitters(&baked.hits, |t| lit[t as usize], margin);
         let gone = store.retain(|k, p| !near[k as usize][p as usize]);
         if ctx.progress() {
@@ -210,15 +217,18 @@ impl Rounds {
         if self.cache_rebuilt || margin == 0 {
             return;
         }
-        let Some(em) = &self.emitters else { return };
+        let Some(lit) = self.emitter_triangles(ctx) else {
+            return;
+        };
         self.cache_rebuilt = true;
-        let mut lit = vec![false; ctx.ds.mesh.num_triangles()];
-        for e in em {
-            lit[e.triangle as usize] = true;
-        }
-        let near = pixels::on_or_near_emitters(&baked.hits, |t| lit[t as usize], margin);
-        let gone: usize = near.iter().map(|v| v.iter().filter(|b| **b).count()).sum();
-        baked.light_field = super::bake::light_field_without(&ctx.ds, baked, &ctx.bake_cfg, &near);
+        let (lf, gone) = super::bake::light_field_without_emitters(
+            &ctx.ds,
+            baked,
+            &ctx.bake_cfg,
+            |t| lit[t as usize],
+            margin,
+        );
+        baked.light_field = lf;
         if ctx.progress() {
             eprintln!(
                 "left {gone} pixels on and next to the emitters out of L′ (refine.paths.cache_margin {margin})"
