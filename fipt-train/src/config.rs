@@ -53,6 +53,12 @@ pub struct RefineSection {
     /// within this many pixels of one that shows an extracted emitter (0: none, the
     /// reference's); `pipeline::pixels::near_emitters`.
     pub emitter_margin: usize,
+    /// The fits on refined shadings keep the pixels that show an extracted emitter, composited
+    /// with the emission mask (true: the reference's). False leaves them out with the margin
+    /// (`pipeline::pixels::on_or_near_emitters`): the emitters are fixed after round 0, and the
+    /// composite pulls the material field on their surface towards white, which the field
+    /// carries into the surfaces next to them.
+    pub emitter_pixels: bool,
     /// The path-traced estimators.
     pub paths: RefineConfig,
 }
@@ -73,6 +79,9 @@ impl Default for RefineSection {
             // The pixels next to the emitters left out (the reference keeps every pixel);
             // `docs/departures/emitter-margin.md`.
             emitter_margin: 1,
+            // And the pixels on the emitters (the reference keeps them);
+            // `docs/departures/emitter-pixels.md`.
+            emitter_pixels: false,
             paths: RefineConfig {
                 samples: fipt_bake::integrators::bake::BakeSamples {
                     diffuse: 64,

@@ -169,6 +169,22 @@ pub fn on_or_near_emitters(
     emitter_masks(hits, is_emitter, margin, true)
 }
 
+/// Per view, the pixels that the fits on refined shadings leave out: those within `margin`
+/// pixels of one whose centre ray hits an emitter (`refine.emitter_margin`), and, unless
+/// `keep_on` (`refine.emitter_pixels`), those themselves. None when none leave.
+pub fn left_out_of_refined_fits(
+    hits: &[ViewHits],
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+    keep_on: bool,
+) -> Option<Vec<Vec<bool>>> {
+    match (margin, keep_on) {
+        (0, true) => None,
+        (_, true) => Some(near_emitters(hits, is_emitter, margin)),
+        (_, false) => Some(on_or_near_emitters(hits, is_emitter, margin)),
+    }
+}
+
 /// The ring of `margin` pixels around the emitter pixels of each view, with the emitter pixels
 /// themselves where `with_on`.
 fn emitter_masks(
@@ -249,6 +265,24 @@ mod tests {
             position: vec![Vec3::ZERO; n],
             normal: vec![Vec3::Z; n],
         }
+    }
+
+    /// The refined fits leave out the ring, the emitter pixels with it unless they are kept,
+    /// and nothing with no margin and the emitter pixels kept.
+    #[test]
+    fn refined_fits_leave_out_the_ring_and_the_emitters_unless_kept() {
+        let (w, h) = (5, 3);
+        let mut tri = vec![1; w * h];
+        tri[w + 2] = 9;
+        let v = vec![view(w, h, tri)];
+        let out = |m, keep| left_out_of_refined_fits(&v, |t| t == 9, m, keep);
+        assert!(out(0, true).is_none());
+        let count = |x: Option<Vec<Vec<bool>>>| x.unwrap()[0].iter().filter(|b| **b).count();
+        assert_eq!(count(out(0, false)), 1);
+        assert_eq!(count(out(1, true)), 8);
+        let both = out(1, false).unwrap();
+        assert_eq!(both[0].iter().filter(|b| **b).count(), 9);
+        assert!(both[0][w + 2] && both[0][1] && !both[0][0] && !both[0][4]);
     }
 
     #[test]

@@ -86,7 +86,8 @@ pub struct Rounds {
     pub first: usize,
     /// The current round's refinement and fit.
     work: RoundWork,
-    /// Whether the pixels next to the emitters have left the store (`refine.emitter_margin`).
+    /// Whether the pixels on and next to the emitters have left the store
+    /// (`refine.emitter_margin`, `refine.emitter_pixels`).
     margin_applied: bool,
     /// Whether L′ has been rebuilt without them (`refine.paths.cache_margin`).
     cache_rebuilt: bool,
@@ -180,27 +181,34 @@ impl Rounds {
     }
 
     /// Before the fits on refined shadings, once: the pixels within `refine.emitter_margin`
-    /// of one that shows an extracted emitter leave the store. Their footprint takes in part of
-    /// the emitter, far brighter than the surface their centre ray hits.
+    /// of one that shows an extracted emitter leave the store (their footprint takes in part of
+    /// the emitter, far brighter than the surface their centre ray hits), and, unless
+    /// `refine.emitter_pixels`, the pixels that show one (the emitters are fixed after round 0;
+    /// fitted, their composite pulls the field towards white around them).
     pub fn leave_out_near_emitters(
         &mut self,
         ctx: &RunContext,
         baked: &Baked,
         store: &mut PixelStore,
     ) {
-        let margin = ctx.cfg.refine.emitter_margin;
-        if self.margin_applied || margin == 0 {
+        let (margin, keep_on) = (ctx.cfg.refine.emitter_margin, ctx.cfg.refine.emitter_pixels);
+        if self.margin_applied {
             return;
         }
-        self.margin_applied = true;
         let Some(lit) = self.emitter_triangles(ctx) else {
             return;
         };
-        let near = pixels::near_emitters(&baked.hits, |t| lit[t as usize], margin);
+        self.margin_applied = true;
+        let Some(near) =
+            pixels::left_out_of_refined_fits(&baked.hits, |t| lit[t as usize], margin, keep_on)
+        else {
+            return;
+        };
         let gone = store.retain(|k, p| !near[k as usize][p as usize]);
         if ctx.progress() {
+            let on = if keep_on { "" } else { "on and " };
             eprintln!(
-                "left {gone} pixels next to the emitters out of the refined fits (refine.emitter_margin {margin})"
+                "left {gone} pixels {on}next to the emitters out of the refined fits (refine.emitter_margin {margin})"
             );
         }
     }
