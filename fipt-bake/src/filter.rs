@@ -3,7 +3,9 @@
 //! A joint (cross) bilateral filter in image space, guided by the first-hit geometry: weights
 //! fall off with world distance (scaled by the pixel footprint), normal difference and distance
 //! from the centre pixel's tangent plane, so nothing is blurred across geometry edges; misses
-//! are never mixed in.
+//! are never mixed in. It returns the window's weighted mean (`order` 0) or the value at the
+//! centre of its weighted least-squares plane (`order` 1), which is not biased by a gradient
+//! up to an edge, where the window is one-sided.
 //!
 //! Owns: the filter. Must not touch: how the shadings were estimated.
 
@@ -25,6 +27,10 @@ pub struct FilterConfig {
     pub sigma_plane_px: f32,
     /// Specular levels (0..6) that are filtered; sharp lobes are left alone.
     pub specular_levels: Vec<usize>,
+    /// 0: the weighted mean of the window; 1: the weighted least-squares plane over the
+    /// centre's tangent plane, read at the centre, which follows a shading gradient up to an
+    /// edge where the mean, one-sided there, is biased.
+    pub order: usize,
 }
 
 impl Default for FilterConfig {
@@ -35,6 +41,7 @@ impl Default for FilterConfig {
             normal_power: 64.0,
             sigma_plane_px: 1.0,
             specular_levels: vec![2, 3, 4, 5],
+            order: 0,
         }
     }
 }
@@ -65,8 +72,14 @@ pub fn filter_view(
         let foot = (hits.t[p] / focal).max(1e-6);
         let inv_s2 = 1.0 / (2.0 * (cfg.sigma_px * foot).powi(2));
         let inv_pl2 = 1.0 / (2.0 * (cfg.sigma_plane_px * foot).powi(2));
-        let mut acc = vec![0f32; groups.iter().map(|g| g.len()).sum()];
+        let nc: usize = groups.iter().map(|g| g.len()).sum();
+        let mut acc = vec![0f32; nc];
         let mut wsum = 0f32;
+        // First order: tangent axes of the centre, moments of [1, u, v] and their products
+        // with each channel (u, v in footprints).
+        let (ta, tb) = ni.any_orthonormal_pair();
+        let mut m = [0f64; 5];
+        let mut mu = vec![0f64; 2 * nc];
         for dy in -r..=r {
             let yy = y + dy;
             if yy < 0 || yy >= h as isize {
@@ -93,26 +106,72 @@ pub fn filter_view(
                 if wgt < 1e-6 {
                     continue;
                 }
+                let (u, v) = ((ta.dot(d) / foot) as f64, (tb.dot(d) / foot) as f64);
+                let wd = wgt as f64;
                 let mut k = 0;
                 for g in groups {
                     for &c in g {
-                        acc[k] += wgt * src[q * dim + c];
+                        let y = src[q * dim + c];
+                        acc[k] += wgt * y;
+                        if cfg.order > 0 {
+                            mu[2 * k] += wd * u * y as f64;
+                            mu[2 * k + 1] += wd * v * y as f64;
+                        }
                         k += 1;
                     }
                 }
                 wsum += wgt;
+                if cfg.order > 0 {
+                    for (mm, x) in m.iter_mut().zip([u, v, u * u, u * v, v * v]) {
+                        *mm += wd * x;
+                    }
+                }
             }
         }
         if wsum > 0.0 {
+            let plane = (cfg.order > 0)
+                .then(|| Plane::new(wsum as f64, &m))
+                .flatten();
             let mut k = 0;
             for g in groups {
                 for &c in g {
-                    out[c] = acc[k] / wsum;
+                    out[c] = match &plane {
+                        Some(pl) => pl.at_centre(acc[k] as f64, mu[2 * k], mu[2 * k + 1]) as f32,
+                        None => acc[k] / wsum,
+                    };
                     k += 1;
                 }
             }
         }
     });
+}
+
+/// The weighted least-squares plane y ≈ β0 + β1·u + β2·v of a window: the inverse of its
+/// moment matrix, from which β0 (the value at the centre) follows for each channel.
+struct Plane {
+    /// First row of the inverse of [[S, Su, Sv], [Su, Suu, Suv], [Sv, Suv, Svv]].
+    row: [f64; 3],
+}
+
+impl Plane {
+    /// From the weight sum `s` and the moments [Su, Sv, Suu, Suv, Svv]; None where the
+    /// window's points do not span a plane (a line of pixels), and the mean is used.
+    fn new(s: f64, m: &[f64; 5]) -> Option<Self> {
+        let [su, sv, suu, suv, svv] = *m;
+        let c00 = suu * svv - suv * suv;
+        let c01 = sv * suv - su * svv;
+        let c02 = su * suv - sv * suu;
+        let det = s * c00 + su * c01 + sv * c02;
+        // Relative to the scale of the moments: a window spread over less than a thin line.
+        (det > 1e-6 * s * (suu * svv).max(1e-30)).then(|| Self {
+            row: [c00 / det, c01 / det, c02 / det],
+        })
+    }
+
+    /// β0 from the channel's sums Σw·y, Σw·u·y, Σw·v·y.
+    fn at_centre(&self, sy: f64, suy: f64, svy: f64) -> f64 {
+        self.row[0] * sy + self.row[1] * suy + self.row[2] * svy
+    }
 }
 
 #[cfg(test)]
@@ -241,6 +300,64 @@ mod tests {
                 assert!((a - b).abs() <= 0.5, "{name}: pixel {p}: {a} vs truth {b}");
             }
         }
+    }
+
+    /// A shading that rises linearly towards a depth step: the first-order filter reads it
+    /// back exactly, up to the edge, where the mean of the one-sided window falls short of it;
+    /// on noise it still averages (variance down at least 4×, against 8× for the mean).
+    #[test]
+    fn first_order_follows_a_gradient_up_to_an_edge() {
+        let h = depth_step();
+        let truth: Vec<f32> = (0..W * H)
+            .map(|p| {
+                if left(p) {
+                    1.0 + 0.1 * (p % W) as f32
+                } else {
+                    5.0
+                }
+            })
+            .collect();
+        let run = |order: usize, data: &[f32]| {
+            let cfg = FilterConfig {
+                order,
+                ..FilterConfig::default()
+            };
+            let mut d = data.to_vec();
+            filter_view(&cfg, &h, F, &mut d, 1, &[vec![0]]);
+            d
+        };
+        let edge = W / 2 - 1;
+        let (mean, plane) = (run(0, &truth), run(1, &truth));
+        for p in 0..W * H {
+            assert!(
+                (plane[p] - truth[p]).abs() < 1e-3,
+                "pixel {p}: {} vs {}",
+                plane[p],
+                truth[p]
+            );
+            if p % W == edge {
+                assert!(
+                    truth[p] - mean[p] > 0.1,
+                    "the mean at the edge: {}",
+                    mean[p]
+                );
+            }
+        }
+        let mut rng = Rng::new(7, 0);
+        let noisy: Vec<f32> = truth.iter().map(|t| t + rng.next_f32() - 0.5).collect();
+        let var = |d: &[f32]| {
+            d.iter()
+                .zip(&truth)
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>()
+                / (W * H) as f64
+        };
+        let after = var(&run(1, &noisy));
+        assert!(
+            after < var(&noisy) / 4.0,
+            "variance {} -> {after}",
+            var(&noisy)
+        );
     }
 
     #[test]
