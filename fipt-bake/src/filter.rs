@@ -75,11 +75,11 @@ pub fn filter_view(
         let nc: usize = groups.iter().map(|g| g.len()).sum();
         let mut acc = vec![0f32; nc];
         let mut wsum = 0f32;
-        // First order: tangent axes of the centre, moments of [1, u, v] and their products
-        // with each channel (u, v in footprints).
-        let (ta, tb) = ni.any_orthonormal_pair();
+        // First order only: tangent axes of the centre, moments of [1, u, v] and their
+        // products with each channel (u, v in footprints).
+        let axes = (cfg.order > 0).then(|| ni.any_orthonormal_pair());
         let mut m = [0f64; 5];
-        let mut mu = vec![0f64; 2 * nc];
+        let mut mu = vec![0f64; if axes.is_some() { 2 * nc } else { 0 }];
         for dy in -r..=r {
             let yy = y + dy;
             if yy < 0 || yy >= h as isize {
@@ -106,32 +106,32 @@ pub fn filter_view(
                 if wgt < 1e-6 {
                     continue;
                 }
-                let (u, v) = ((ta.dot(d) / foot) as f64, (tb.dot(d) / foot) as f64);
-                let wd = wgt as f64;
+                // (w·u, w·v) of this pixel, first order only.
+                let wuv = axes.map(|(ta, tb)| {
+                    let (u, v) = ((ta.dot(d) / foot) as f64, (tb.dot(d) / foot) as f64);
+                    let wd = wgt as f64;
+                    for (mm, x) in m.iter_mut().zip([u, v, u * u, u * v, v * v]) {
+                        *mm += wd * x;
+                    }
+                    (wd * u, wd * v)
+                });
                 let mut k = 0;
                 for g in groups {
                     for &c in g {
                         let y = src[q * dim + c];
                         acc[k] += wgt * y;
-                        if cfg.order > 0 {
-                            mu[2 * k] += wd * u * y as f64;
-                            mu[2 * k + 1] += wd * v * y as f64;
+                        if let Some((wu, wv)) = wuv {
+                            mu[2 * k] += wu * y as f64;
+                            mu[2 * k + 1] += wv * y as f64;
                         }
                         k += 1;
                     }
                 }
                 wsum += wgt;
-                if cfg.order > 0 {
-                    for (mm, x) in m.iter_mut().zip([u, v, u * u, u * v, v * v]) {
-                        *mm += wd * x;
-                    }
-                }
             }
         }
         if wsum > 0.0 {
-            let plane = (cfg.order > 0)
-                .then(|| Plane::new(wsum as f64, &m))
-                .flatten();
+            let plane = axes.and_then(|_| Plane::new(wsum as f64, &m));
             let mut k = 0;
             for g in groups {
                 for &c in g {

@@ -178,11 +178,7 @@ pub fn left_out_of_refined_fits(
     margin: usize,
     keep_on: bool,
 ) -> Option<Vec<Vec<bool>>> {
-    match (margin, keep_on) {
-        (0, true) => None,
-        (_, true) => Some(near_emitters(hits, is_emitter, margin)),
-        (_, false) => Some(on_or_near_emitters(hits, is_emitter, margin)),
-    }
+    (margin > 0 || !keep_on).then(|| emitter_masks(hits, is_emitter, margin, !keep_on))
 }
 
 /// The ring of `margin` pixels around the emitter pixels of each view, with the emitter pixels
