@@ -526,6 +526,12 @@ pub struct HopConfig {
     /// Smallest |best σ − mean fitted σ| of the patch sweep that calls for a hop (the fit's
     /// free colour keeps descent from nearer minima too).
     pub patch_min_move: f32,
+    /// Weight of a pull that holds every segment not hopping at its mean σ and m from before
+    /// the hop, through both phases (0: off; the hop's extra steps then move them freely).
+    pub anchor: f32,
+    /// A segment whose winning hypothesis is not the patch's, where that first hop is undone,
+    /// hops with the patch candidates if its patch hypothesis counts too.
+    pub patch_fallback: bool,
 }
 
 impl Default for HopConfig {
@@ -542,6 +548,8 @@ impl Default for HopConfig {
             patch: 2.0,
             patch_gain: 0.01,
             patch_min_move: 0.15,
+            anchor: 0.0,
+            patch_fallback: false,
         }
     }
 }
@@ -853,11 +861,9 @@ impl HopConfig {
             "train.hop.steps",
             "must be in (0, 1]",
         )?;
-        check(
-            h.pull >= 0.0 && h.pull.is_finite(),
-            "train.hop.pull",
-            "must be >= 0",
-        )?;
+        for (k, v) in [("train.hop.pull", h.pull), ("train.hop.anchor", h.anchor)] {
+            check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
+        }
         check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;
         Ok(())
     }

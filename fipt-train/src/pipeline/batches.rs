@@ -157,8 +157,9 @@ pub fn step_entries(
 ) -> StepLoss {
     match ds {
         Some(ds) => {
-            // The semantic loss and a σ pull read the batch's labels on the host.
-            let host = (mode == SegMode::Semantic || tr.pull.is_some()).then(|| store.batch(idx));
+            // The semantic loss and a σ pull or anchor read the batch's labels on the host.
+            let host = (mode == SegMode::Semantic || tr.pull.is_some() || tr.anchor.is_some())
+                .then(|| store.batch(idx));
             let input = StepInput::Device {
                 store: ds,
                 idx,

@@ -5,9 +5,12 @@
 //! continues with σ pulled there (`SigmaPull`), then released (trained as in the fit's last
 //! step), and the hopped model is kept only if the hopped segments' objective fell by at least
 //! `gain` too. The other
-//! segments see only more steps of the same fit; their objective is not part of the decision:
-//! on fipt-room it moves by ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1,
-//! objective ~0.4 per pixel against ~1e-3 elsewhere) would decide it alone.
+//! segments see only more steps of the same fit, held at their mean σ and m by a pull of their
+//! own where `anchor` > 0 (the networks are shared, and a strong pull on some segments carries
+//! the rest along); their objective is not part of the decision: on fipt-room it moves by
+//! ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1, objective ~0.4 per pixel
+//! against ~1e-3 elsewhere) would decide it alone. With `patch_fallback`, a segment whose first
+//! hop (sweep, metal or carried) is undone tries its patch hypothesis in the second.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
@@ -79,6 +82,11 @@ pub struct SegmentObjective {
     pub best_sigma: f64,
     pub best: f64,
     pub after: Option<f64>,
+    /// Mean σ and m after the hop (the model kept).
+    #[serde(default)]
+    pub sigma_after: Option<f64>,
+    #[serde(default)]
+    pub metallic_after: Option<f64>,
     /// Mean fitted m.
     #[serde(default)]
     pub metallic: f64,
@@ -379,6 +387,8 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                 best_sigma,
                 best,
                 after: None,
+                sigma_after: None,
+                metallic_after: None,
                 metallic: e.metallic,
                 metal: (!e.metal.is_empty()).then(|| {
                     let (sigma, obj) = profile_min(&e.metal);
@@ -415,61 +425,83 @@ fn thresholds(cfg: &HopConfig, source: Hypothesis) -> (f32, f32) {
 fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
     checks
         .iter()
-        .filter(|c| c.before > 0.0)
+        .filter_map(|c| options(cfg, c).into_iter().next())
+        .collect()
+}
+
+/// The segments whose winning hypothesis is not the patch's, with their patch hypothesis where
+/// it counts too: if the first hop is undone, these hop with the patch candidates.
+fn patch_fallbacks(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
+    checks
+        .iter()
         .filter_map(|c| {
-            let far = |source: Hypothesis, sigma: f64, m: Option<f64>| {
-                (sigma - c.sigma).abs() >= thresholds(cfg, source).1 as f64
-                    || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
+            let mut o = options(cfg, c).into_iter();
+            let first = o.next()?;
+            (first.source != Hypothesis::Patch)
+                .then(|| o.find(|h| h.source == Hypothesis::Patch))
+                .flatten()
+        })
+        .collect()
+}
+
+/// Every hypothesis that counts for one segment (`candidates`), the largest relative gain
+/// first.
+fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
+    if c.before <= 0.0 {
+        return Vec::new();
+    }
+    let far = |source: Hypothesis, sigma: f64, m: Option<f64>| {
+        (sigma - c.sigma).abs() >= thresholds(cfg, source).1 as f64
+            || m.is_some_and(|m| (m >= 0.5) != (c.metallic >= 0.5))
+    };
+    // (hypothesis, σ, m, objective, baseline)
+    let mut options = vec![(Hypothesis::Sweep, c.best_sigma, None, c.best, c.before)];
+    if let Some((sigma, obj, base)) = c.metal
+        && c.metallic < 0.5
+    {
+        options.push((Hypothesis::Metal, sigma, Some(1.0), obj, base));
+    }
+    if let Some((sigma, m, obj)) = c.carried {
+        let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
+        options.push((Hypothesis::Carried, sigma, m, obj, c.before));
+    }
+    // Dielectrics only: a metal's σ is the sweep's and the metal's to find.
+    if let Some((sigma, obj, base)) = c.patch
+        && c.metallic < 0.5
+    {
+        options.push((Hypothesis::Patch, sigma, None, obj, base));
+    }
+    let gain = |obj: f64, base: f64| 1.0 - obj / base;
+    options.retain(|&(source, sigma, m, obj, base)| {
+        obj.is_finite()
+            && base > 0.0
+            && (source == Hypothesis::Carried || far(source, sigma, m))
+            && gain(obj, base) >= thresholds(cfg, source).0 as f64
+    });
+    options.sort_by(|a, b| gain(b.3, b.4).total_cmp(&gain(a.3, a.4)));
+    options
+        .into_iter()
+        .map(|(source, target, target_metallic, obj, base)| {
+            // A patch candidate is measured in its own terms throughout.
+            let measured = if source == Hypothesis::Patch {
+                base
+            } else {
+                c.before
             };
-            // (hypothesis, σ, m, objective, baseline)
-            let mut options = vec![(Hypothesis::Sweep, c.best_sigma, None, c.best, c.before)];
-            if let Some((sigma, obj, base)) = c.metal
-                && c.metallic < 0.5
-            {
-                options.push((Hypothesis::Metal, sigma, Some(1.0), obj, base));
+            HopCandidate {
+                segment: c.segment,
+                pixels: c.pixels,
+                sigma: c.sigma,
+                target,
+                sigma_after: c.sigma,
+                source,
+                metallic: c.metallic,
+                target_metallic,
+                metallic_after: c.metallic,
+                objective: measured,
+                objective_target: obj,
+                objective_after: measured,
             }
-            if let Some((sigma, m, obj)) = c.carried {
-                let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
-                options.push((Hypothesis::Carried, sigma, m, obj, c.before));
-            }
-            // Dielectrics only: a metal's σ is the sweep's and the metal's to find.
-            if let Some((sigma, obj, base)) = c.patch
-                && c.metallic < 0.5
-            {
-                options.push((Hypothesis::Patch, sigma, None, obj, base));
-            }
-            let gain = |obj: f64, base: f64| 1.0 - obj / base;
-            options
-                .into_iter()
-                .filter(|&(source, sigma, m, obj, base)| {
-                    obj.is_finite()
-                        && base > 0.0
-                        && (source == Hypothesis::Carried || far(source, sigma, m))
-                        && gain(obj, base) >= thresholds(cfg, source).0 as f64
-                })
-                .max_by(|a, b| gain(a.3, a.4).total_cmp(&gain(b.3, b.4)))
-                .map(|(source, target, target_metallic, obj, base)| {
-                    // A patch candidate is measured in its own terms throughout.
-                    let measured = if source == Hypothesis::Patch {
-                        base
-                    } else {
-                        c.before
-                    };
-                    HopCandidate {
-                        segment: c.segment,
-                        pixels: c.pixels,
-                        sigma: c.sigma,
-                        target,
-                        sigma_after: c.sigma,
-                        source,
-                        metallic: c.metallic,
-                        target_metallic,
-                        metallic_after: c.metallic,
-                        objective: measured,
-                        objective_target: obj,
-                        objective_after: measured,
-                    }
-                })
         })
         .collect()
 }
@@ -523,6 +555,11 @@ pub fn hop(
             row.patch = p.profile(&tr.model, row.segment);
         }
     }
+    let mut fallbacks = if plan.cfg.patch_fallback {
+        patch_fallbacks(plan.cfg, &segments)
+    } else {
+        Vec::new()
+    };
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
         segments,
@@ -539,6 +576,13 @@ pub fn hop(
     let mut tr = tr;
     let mut cands = std::mem::take(&mut report.candidates);
     let mut after = Vec::new();
+    // Each segment's mean σ and m before each hop: where `anchor` > 0, the segments not hopping
+    // are pulled there through both phases.
+    let mut held_at: Vec<(i32, f64, f64)> = samples
+        .iter()
+        .zip(&before)
+        .map(|(s, e)| (s.id, e.sigma, e.metallic))
+        .collect();
     for patch in [false, true] {
         let group: Vec<usize> = (0..cands.len())
             .filter(|&k| (cands[k].source == Hypothesis::Patch) == patch)
@@ -548,7 +592,7 @@ pub fn hop(
         }
         let mut chosen: Vec<HopCandidate> = group.iter().map(|&k| cands[k].clone()).collect();
         let kept = tr.clone();
-        let (hopped, steps) = hop_phases(tr, store, plan, &chosen, patch)?;
+        let (hopped, steps) = hop_phases(tr, store, plan, &chosen, &held_at, patch)?;
         tr = hopped;
         report.steps += steps;
         after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
@@ -582,10 +626,19 @@ pub fn hop(
         for (&k, c) in group.iter().zip(chosen) {
             cands[k] = c;
         }
+        // The segments of an undone first hop try their patch hypothesis in the second.
+        if !patch && !helped {
+            cands.append(&mut fallbacks);
+        }
+        for (h, a) in held_at.iter_mut().zip(&after) {
+            (h.1, h.2) = (a.sigma, a.metallic);
+        }
     }
     report.candidates = cands;
     for (row, a) in report.segments.iter_mut().zip(&after) {
         row.after = Some(a.own);
+        row.sigma_after = Some(a.sigma);
+        row.metallic_after = Some(a.metallic);
     }
     report.objective_after = Some(whole(&samples, &after));
     Ok((tr, report))
@@ -594,12 +647,15 @@ pub fn hop(
 /// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
 /// names one) pulled to their targets, then as many steps again released, except with `held`
 /// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
-/// alone would take them back). Returns the hopped trainer and the steps run.
+/// alone would take them back). Where `anchor` > 0, every other segment of `held_at` (segment,
+/// mean σ, mean m) is pulled to its σ and m through both phases. Returns the hopped trainer and
+/// the steps run.
 fn hop_phases(
     mut tr: Trainer,
     store: &PixelStore,
     plan: &HopPlan,
     chosen: &[HopCandidate],
+    held_at: &[(i32, f64, f64)],
     held: bool,
 ) -> anyhow::Result<(Trainer, usize)> {
     // The fit's batch sizes and segments; draws of its own (uniform with replacement).
@@ -618,7 +674,7 @@ fn hop_phases(
     let lambda_d = tr.cfg.lambda_d;
     tr.cfg.lr = plan.schedule.lr_at(total.saturating_sub(1), total);
     tr.cfg.lambda_d = plan.lambda_d;
-    tr.pull = Some(SigmaPull {
+    let pull = SigmaPull {
         weight: plan.cfg.pull,
         target: chosen
             .iter()
@@ -628,7 +684,20 @@ fn hop_phases(
             .iter()
             .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
             .collect(),
+    };
+    // The segments not hopping, held where they were (`anchor`).
+    let anchor = (plan.cfg.anchor > 0.0).then(|| {
+        let others = held_at
+            .iter()
+            .filter(|h| chosen.iter().all(|c| c.segment != h.0));
+        SigmaPull {
+            weight: plan.cfg.anchor,
+            target: others.clone().map(|h| (h.0, h.1 as f32)).collect(),
+            metallic: others.map(|h| (h.0, h.2 as f32)).collect(),
+        }
     });
+    tr.pull = Some(pull);
+    tr.anchor = anchor;
     let pb = progress_bar(2 * phase as u64, "hop", plan.show_progress);
     let mut idx = Vec::with_capacity(batch);
     for s in 0..2 * phase {
@@ -653,6 +722,7 @@ fn hop_phases(
     }
     pb.finish_and_clear();
     tr.pull = None;
+    tr.anchor = None;
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
     Ok((tr, 2 * phase))
@@ -1160,19 +1230,24 @@ mod tests {
         assert_eq!(now == before, !rep.accepted);
     }
 
-    /// A patch candidate counts by its own gain and distance, and is kept by its own measure and
-    /// gain; the other hypotheses keep theirs.
-    #[test]
-    fn patch_candidates_have_their_own_thresholds() {
-        let st = store(&[0]);
-        let samples = sample(&st, 8);
+    /// A config with a patch gain of 2 % and the check of one segment fitted at σ 0.8 whose sweep
+    /// is flat.
+    fn one_flat_segment() -> (HopConfig, Vec<SegmentObjective>) {
+        let samples = sample(&store(&[0]), 8);
         let cfg = HopConfig {
             patch_gain: 0.02,
             patch_min_move: 0.15,
             ..HopConfig::default()
         };
+        (cfg, checks(&samples, &[eval(0.8, 1.0, 0, 1.0)]))
+    }
+
+    /// A patch candidate counts by its own gain and distance, and is kept by its own measure and
+    /// gain; the other hypotheses keep theirs.
+    #[test]
+    fn patch_candidates_have_their_own_thresholds() {
+        let (cfg, mut rows) = one_flat_segment();
         // The sweep is flat (no hop of its own); the patch sweep lies 0.2 away.
-        let mut rows = checks(&samples, &[eval(0.8, 1.0, 0, 1.0)]);
         let mut with = |patch: (f64, f64, f64)| {
             rows[0].patch = Some(patch);
             candidates(&cfg, &rows)
@@ -1201,6 +1276,113 @@ mod tests {
         // A sweep candidate needs its 5 %, where a patch candidate's 2 % would do.
         assert!(!kept(cand(s, 1.0, 0.97)));
         assert!(kept(cand(s, 1.0, 0.9)));
+    }
+
+    /// With `anchor`, the segments that do not hop stay near their σ and m while one segment is
+    /// pulled far away; without it, the shared networks carry them along.
+    #[test]
+    fn the_anchor_holds_the_segments_not_hopping() {
+        // Five segments, each a stretch of the toy's curve (apart in space).
+        let mut st = toy_store(400);
+        for (i, s) in st.pixels.seg.iter_mut().enumerate() {
+            *s = (i / 80) as i32;
+        }
+        let (tr, schedule) = toy_fitted(&st);
+        let samples = sample(&st, 80);
+        let prior = DiffusePrior {
+            lambda_d: 0.0,
+            sigma: tr.cfg.prior_sigma,
+        };
+        let at = |tr: &Trainer| evaluate(&tr.model, &st, &samples, prior, Hypotheses::default());
+        let before = at(&tr);
+        let held_at: Vec<(i32, f64, f64)> = samples
+            .iter()
+            .zip(&before)
+            .map(|(s, e)| (s.id, e.sigma, e.metallic))
+            .collect();
+        let target = if before[0].sigma > 0.5 { 0.05 } else { 0.95 };
+        let chosen = [HopCandidate {
+            segment: samples[0].id,
+            pixels: samples[0].size,
+            sigma: before[0].sigma,
+            target,
+            sigma_after: before[0].sigma,
+            source: Hypothesis::Sweep,
+            metallic: before[0].metallic,
+            target_metallic: None,
+            metallic_after: before[0].metallic,
+            objective: 1.0,
+            objective_target: 0.5,
+            objective_after: 1.0,
+        }];
+        let moved = |anchor: f32| {
+            let hc = HopConfig {
+                steps: 2.0,
+                pull: 10.0,
+                anchor,
+                ..HopConfig::default()
+            };
+            let plan = toy_plan(&hc, &schedule, 5e-4, 0.01);
+            let (out, _) = hop_phases(tr.clone(), &st, &plan, &chosen, &held_at, true).unwrap();
+            let after = at(&out);
+            let others = 1..samples.len();
+            let drift = others
+                .clone()
+                .map(|k| {
+                    (after[k].sigma - before[k].sigma)
+                        .abs()
+                        .max((after[k].metallic - before[k].metallic).abs())
+                })
+                .fold(0.0f64, f64::max);
+            // How far the hopping segment's σ got from the others', towards its target.
+            let mean = others.map(|k| after[k].sigma).sum::<f64>() / (samples.len() - 1) as f64;
+            (
+                drift,
+                (after[0].sigma - mean) * (target - before[0].sigma).signum(),
+            )
+        };
+        // The toy's small networks share most of what σ depends on: free, every segment goes
+        // where the pulled one goes.
+        let (free, free_apart) = moved(0.0);
+        let (held, held_apart) = moved(10.0);
+        assert!(
+            free > 0.05,
+            "without the anchor the others moved only {free}"
+        );
+        assert!(
+            held < 0.5 * free,
+            "the others moved {held} with the anchor, {free} without"
+        );
+        assert!(
+            held_apart > free_apart + 0.03,
+            "the hopping segment {held_apart} apart from the others held, {free_apart} free"
+        );
+    }
+
+    /// A segment whose metal hypothesis wins keeps its patch hypothesis as a fallback for the
+    /// second hop; one whose patch hypothesis wins, or whose patch does not count, has none.
+    #[test]
+    fn an_undone_hop_falls_back_to_the_patch() {
+        let (cfg, mut rows) = one_flat_segment();
+        // The metal (σ 0.3, m 1) halves its baseline; the patch (σ 0.1) gains 13 %.
+        rows[0].metallic = 0.1;
+        rows[0].metal = Some((0.3, 0.5, 1.0));
+        rows[0].patch = Some((0.1, 0.87, 1.0));
+        let c = candidates(&cfg, &rows);
+        assert_eq!((c.len(), c[0].source), (1, Hypothesis::Metal));
+        let f = patch_fallbacks(&cfg, &rows);
+        assert_eq!(
+            (f.len(), f[0].source, f[0].target, f[0].objective),
+            (1, Hypothesis::Patch, 0.1, 1.0)
+        );
+        // The patch gains more than the metal: it is the candidate, and no fallback.
+        rows[0].patch = Some((0.1, 0.4, 1.0));
+        assert_eq!(candidates(&cfg, &rows)[0].source, Hypothesis::Patch);
+        assert!(patch_fallbacks(&cfg, &rows).is_empty());
+        // A patch that does not count (1 % lower) is no fallback either.
+        rows[0].patch = Some((0.1, 0.99, 1.0));
+        assert_eq!(candidates(&cfg, &rows)[0].source, Hypothesis::Metal);
+        assert!(patch_fallbacks(&cfg, &rows).is_empty());
     }
 
     /// On photos rendered at σ 0.3 with one colour per cube, the patch sweep proposes σ near

@@ -53,7 +53,7 @@ impl Trainer {
             let z = sigma_metallic_logits(raw_mat);
             ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
         }
-        if let Some(pull) = &self.pull {
+        for pull in [&self.pull, &self.anchor].into_iter().flatten() {
             let b = px
                 .host
                 .expect("the σ pull needs the batch on the host (StepInput::Device { host })");

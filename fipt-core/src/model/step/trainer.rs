@@ -60,6 +60,9 @@ pub struct Trainer {
     pub profile: StepProfile,
     /// A σ pull added to the loss of every step while set (None: the objective of Eq. 15–20).
     pub pull: Option<SigmaPull>,
+    /// A second pull of the same form, holding the segments that do not hop where they were
+    /// (`train.hop.anchor`).
+    pub anchor: Option<SigmaPull>,
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps. On a device that runs
@@ -158,6 +161,7 @@ impl Trainer {
             steps: 0,
             profile: StepProfile::default(),
             pull: None,
+            anchor: None,
         }
     }
 
