@@ -549,7 +549,7 @@ impl Default for HopConfig {
             patch_gain: 0.01,
             patch_min_move: 0.15,
             anchor: 0.0,
-            patch_fallback: false,
+            patch_fallback: true,
         }
     }
 }
