@@ -532,6 +532,11 @@ pub struct HopConfig {
     /// A segment whose winning hypothesis is not the patch's, where that first hop is undone,
     /// hops with the patch candidates if its patch hypothesis counts too.
     pub patch_fallback: bool,
+    /// Where `anchor` > 0, in the rounds on refined shadings: a dielectric segment not hopping
+    /// whose patch sweep scores lower than its fit at a σ within `min_move` of its fitted σ is
+    /// held at that σ instead of at its fitted one (its data is flat there, and the prior put
+    /// it where the fit left it).
+    pub settle: bool,
 }
 
 impl Default for HopConfig {
@@ -548,8 +553,9 @@ impl Default for HopConfig {
             patch: 2.0,
             patch_gain: 0.01,
             patch_min_move: 0.15,
-            anchor: 0.0,
+            anchor: 1e-2,
             patch_fallback: true,
+            settle: true,
         }
     }
 }

@@ -10,7 +10,9 @@
 //! the rest along); their objective is not part of the decision: on fipt-room it moves by
 //! ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1, objective ~0.4 per pixel
 //! against ~1e-3 elsewhere) would decide it alone. With `patch_fallback`, a segment whose first
-//! hop (sweep, metal or carried) is undone tries its patch hypothesis in the second.
+//! hop (sweep, metal or carried) is undone tries its patch hypothesis in the second. With
+//! `settle`, the anchor holds a dielectric of a refined round at its patch sweep's nearby
+//! minimum rather than where the prior left it.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
@@ -104,6 +106,10 @@ pub struct SegmentObjective {
     /// there, and the objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
+    /// The σ the anchor held it at in place of its fitted one (`train.hop.settle`; None: its
+    /// fitted σ, or not held).
+    #[serde(default)]
+    pub settled: Option<f64>,
 }
 
 /// What proposed a hop's target.
@@ -396,6 +402,7 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                 }),
                 carried: e.carried,
                 patch: None,
+                settled: None,
             }
         })
         .collect()
@@ -506,6 +513,19 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
         .collect()
 }
 
+/// The σ the anchor holds a segment at in place of its fitted one (`train.hop.settle`): on
+/// refined shadings, a dielectric's patch sweep minimum where it scores below the fit and lies
+/// within `min_move` of it (nearer than any hop goes; its data is flat there, and the prior
+/// decided where the fit left it). None: held at its fitted σ.
+fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> {
+    if !(cfg.settle && refined && cfg.anchor > 0.0) || c.metallic >= 0.5 {
+        return None;
+    }
+    let (sigma, obj, base) = c.patch?;
+    (obj.is_finite() && obj < base && (sigma - c.sigma).abs() < cfg.min_move as f64)
+        .then_some(sigma)
+}
+
 /// What a hop needs of its fit besides the trainer and the pixels.
 pub struct HopPlan<'a> {
     pub cfg: &'a HopConfig,
@@ -517,6 +537,8 @@ pub struct HopPlan<'a> {
     pub show_progress: bool,
     /// The last round's model (`train.hop.carry`; None in round 0).
     pub carried: Option<&'a FiptModel>,
+    /// Whether the fit ran on refined shadings (rounds after 0: `train.hop.settle` applies).
+    pub refined: bool,
     /// A pixel's footprint in world units at the median depth (`train.hop.patch` counts its
     /// cubes' side in these).
     pub footprint: f32,
@@ -553,6 +575,7 @@ pub fn hop(
     if let Some(p) = &patches {
         for row in &mut segments {
             row.patch = p.profile(&tr.model, row.segment);
+            row.settled = settled(plan.cfg, plan.refined, row);
         }
     }
     let mut fallbacks = if plan.cfg.patch_fallback {
@@ -576,12 +599,14 @@ pub fn hop(
     let mut tr = tr;
     let mut cands = std::mem::take(&mut report.candidates);
     let mut after = Vec::new();
-    // Each segment's mean σ and m before each hop: where `anchor` > 0, the segments not hopping
-    // are pulled there through both phases.
+    // Each segment's mean σ (or its settled σ) and m before each hop: where `anchor` > 0, the
+    // segments not hopping are pulled there through both phases.
+    let settle: Vec<Option<f64>> = report.segments.iter().map(|r| r.settled).collect();
     let mut held_at: Vec<(i32, f64, f64)> = samples
         .iter()
         .zip(&before)
-        .map(|(s, e)| (s.id, e.sigma, e.metallic))
+        .zip(&settle)
+        .map(|((s, e), t)| (s.id, t.unwrap_or(e.sigma), e.metallic))
         .collect();
     for patch in [false, true] {
         let group: Vec<usize> = (0..cands.len())
@@ -630,8 +655,15 @@ pub fn hop(
         if !patch && !helped {
             cands.append(&mut fallbacks);
         }
-        for (h, a) in held_at.iter_mut().zip(&after) {
-            (h.1, h.2) = (a.sigma, a.metallic);
+        // A segment whose hop was kept is held where it hopped to, not at its settled σ.
+        for ((h, a), t) in held_at.iter_mut().zip(&after).zip(&settle) {
+            let hopped = helped && group.iter().any(|&k| cands[k].segment == h.0);
+            h.1 = if hopped {
+                a.sigma
+            } else {
+                t.unwrap_or(a.sigma)
+            };
+            h.2 = a.metallic;
         }
     }
     report.candidates = cands;
@@ -846,6 +878,7 @@ mod tests {
             seed: 5,
             show_progress: false,
             carried: None,
+            refined: false,
             footprint,
         }
     }
@@ -1357,6 +1390,34 @@ mod tests {
             held_apart > free_apart + 0.03,
             "the hopping segment {held_apart} apart from the others held, {free_apart} free"
         );
+    }
+
+    /// `settle` holds a dielectric of a refined round at its patch minimum where that scores
+    /// lower and lies within `min_move`; anywhere else the anchor keeps the fitted σ.
+    #[test]
+    fn settle_holds_at_the_nearby_patch_minimum() {
+        let (mut cfg, mut rows) = one_flat_segment();
+        (cfg.settle, cfg.anchor, cfg.min_move) = (true, 1e-2, 0.25);
+        rows[0].metallic = 0.05;
+        rows[0].patch = Some((0.62, 0.99, 1.0));
+        assert_eq!(settled(&cfg, true, &rows[0]), Some(0.62));
+        // Not on round 0's baked shadings, nor without the anchor or the key.
+        assert_eq!(settled(&cfg, false, &rows[0]), None);
+        let off = |f: fn(&mut HopConfig)| {
+            let mut c = cfg.clone();
+            f(&mut c);
+            settled(&c, true, &rows[0])
+        };
+        assert_eq!(off(|c| c.anchor = 0.0), None);
+        assert_eq!(off(|c| c.settle = false), None);
+        // A minimum that scores no lower, one a hop's distance away, and a metal: held as fitted.
+        rows[0].patch = Some((0.62, 1.0, 1.0));
+        assert_eq!(settled(&cfg, true, &rows[0]), None);
+        rows[0].patch = Some((0.5, 0.9, 1.0));
+        assert_eq!(settled(&cfg, true, &rows[0]), None);
+        rows[0].patch = Some((0.62, 0.9, 1.0));
+        rows[0].metallic = 0.7;
+        assert_eq!(settled(&cfg, true, &rows[0]), None);
     }
 
     /// A segment whose metal hypothesis wins keeps its patch hypothesis as a fallback for the

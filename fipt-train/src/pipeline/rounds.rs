@@ -351,6 +351,7 @@ impl Rounds {
                     seed: ctx.seeds.hop(r),
                     show_progress: ctx.progress(),
                     carried: self.prev.as_ref().map(|(t, _)| &t.model),
+                    refined: r > 0,
                     footprint: setup.footprint as f32 * (setup.scene_box.max - setup.scene_box.min),
                 };
                 let (tr, rep) = hop::hop(tr, store, &plan).map_err(|e| {
