@@ -534,8 +534,8 @@ pub struct HopConfig {
     pub patch_fallback: bool,
     /// Where `anchor` > 0, in the rounds on refined shadings: a dielectric segment not hopping
     /// whose patch sweep scores lower than its fit at a σ within `min_move` of its fitted σ is
-    /// held at that σ instead of at its fitted one (its data is flat there, and the prior put
-    /// it where the fit left it).
+    /// held at that σ and m 0 (the patch hypothesis, a dielectric's) instead of at its fitted
+    /// σ and m (its data is flat there, and the prior put it where the fit left it).
     pub settle: bool,
 }
 

@@ -11,8 +11,8 @@
 //! ±1–4 % per segment in those steps, and the emitters' pixels (α ≈ 1, objective ~0.4 per pixel
 //! against ~1e-3 elsewhere) would decide it alone. With `patch_fallback`, a segment whose first
 //! hop (sweep, metal or carried) is undone tries its patch hypothesis in the second. With
-//! `settle`, the anchor holds a dielectric of a refined round at its patch sweep's nearby
-//! minimum rather than where the prior left it.
+//! `settle`, the anchor holds a dielectric of a refined round at its patch hypothesis (its
+//! sweep's nearby minimum, and m = 0) rather than where the prior left it.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
@@ -106,8 +106,8 @@ pub struct SegmentObjective {
     /// there, and the objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
-    /// The σ the anchor held it at in place of its fitted one (`train.hop.settle`; None: its
-    /// fitted σ, or not held).
+    /// The σ the anchor held it at in place of its fitted one, with m 0 (`train.hop.settle`;
+    /// None: its fitted σ and m, or not held).
     #[serde(default)]
     pub settled: Option<f64>,
 }
@@ -526,6 +526,12 @@ fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> 
         .then_some(sigma)
 }
 
+/// The m the anchor holds a segment at: 0 where it is settled (its patch hypothesis is a
+/// dielectric's, m = 0, like its σ), else its fitted `m`.
+fn held_m(settled: Option<f64>, m: f64) -> f64 {
+    if settled.is_some() { 0.0 } else { m }
+}
+
 /// What a hop needs of its fit besides the trainer and the pixels.
 pub struct HopPlan<'a> {
     pub cfg: &'a HopConfig,
@@ -599,14 +605,14 @@ pub fn hop(
     let mut tr = tr;
     let mut cands = std::mem::take(&mut report.candidates);
     let mut after = Vec::new();
-    // Each segment's mean σ (or its settled σ) and m before each hop: where `anchor` > 0, the
-    // segments not hopping are pulled there through both phases.
+    // Each segment's mean σ and m before each hop (or its settled σ and m 0): where `anchor`
+    // > 0, the segments not hopping are pulled there through both phases.
     let settle: Vec<Option<f64>> = report.segments.iter().map(|r| r.settled).collect();
     let mut held_at: Vec<(i32, f64, f64)> = samples
         .iter()
         .zip(&before)
         .zip(&settle)
-        .map(|((s, e), t)| (s.id, t.unwrap_or(e.sigma), e.metallic))
+        .map(|((s, e), t)| (s.id, t.unwrap_or(e.sigma), held_m(*t, e.metallic)))
         .collect();
     for patch in [false, true] {
         let group: Vec<usize> = (0..cands.len())
@@ -655,15 +661,14 @@ pub fn hop(
         if !patch && !helped {
             cands.append(&mut fallbacks);
         }
-        // A segment whose hop was kept is held where it hopped to, not at its settled σ.
+        // A segment whose hop was kept is held where it hopped to, not where it settled.
         for ((h, a), t) in held_at.iter_mut().zip(&after).zip(&settle) {
             let hopped = helped && group.iter().any(|&k| cands[k].segment == h.0);
-            h.1 = if hopped {
-                a.sigma
+            (h.1, h.2) = if hopped {
+                (a.sigma, a.metallic)
             } else {
-                t.unwrap_or(a.sigma)
+                (t.unwrap_or(a.sigma), held_m(*t, a.metallic))
             };
-            h.2 = a.metallic;
         }
     }
     report.candidates = cands;
@@ -1392,8 +1397,8 @@ mod tests {
         );
     }
 
-    /// `settle` holds a dielectric of a refined round at its patch minimum where that scores
-    /// lower and lies within `min_move`; anywhere else the anchor keeps the fitted σ.
+    /// `settle` holds a dielectric of a refined round at its patch minimum (and m 0) where that
+    /// scores lower and lies within `min_move`; anywhere else the anchor keeps the fitted σ.
     #[test]
     fn settle_holds_at_the_nearby_patch_minimum() {
         let (mut cfg, mut rows) = one_flat_segment();
@@ -1401,6 +1406,9 @@ mod tests {
         rows[0].metallic = 0.05;
         rows[0].patch = Some((0.62, 0.99, 1.0));
         assert_eq!(settled(&cfg, true, &rows[0]), Some(0.62));
+        // Held as the patch hypothesis is: a dielectric, m 0; unsettled, at its fitted m.
+        assert_eq!(held_m(Some(0.62), 0.05), 0.0);
+        assert_eq!(held_m(None, 0.05), 0.05);
         // Not on round 0's baked shadings, nor without the anchor or the key.
         assert_eq!(settled(&cfg, false, &rows[0]), None);
         let off = |f: fn(&mut HopConfig)| {
