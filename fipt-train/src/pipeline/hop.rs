@@ -526,10 +526,10 @@ fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> 
         .then_some(sigma)
 }
 
-/// The m the anchor holds a segment at: 0 where it is settled (its patch hypothesis is a
-/// dielectric's, m = 0, like its σ), else its fitted `m`.
-fn held_m(settled: Option<f64>, m: f64) -> f64 {
-    if settled.is_some() { 0.0 } else { m }
+/// The σ and m the anchor holds a segment at: where it is settled, its patch hypothesis (the
+/// settled σ, and m 0: a dielectric's), else its fitted `sigma` and `m`.
+fn anchor_target(settled: Option<f64>, sigma: f64, m: f64) -> (f64, f64) {
+    settled.map_or((sigma, m), |s| (s, 0.0))
 }
 
 /// What a hop needs of its fit besides the trainer and the pixels.
@@ -612,7 +612,10 @@ pub fn hop(
         .iter()
         .zip(&before)
         .zip(&settle)
-        .map(|((s, e), t)| (s.id, t.unwrap_or(e.sigma), held_m(*t, e.metallic)))
+        .map(|((s, e), t)| {
+            let (sigma, m) = anchor_target(*t, e.sigma, e.metallic);
+            (s.id, sigma, m)
+        })
         .collect();
     for patch in [false, true] {
         let group: Vec<usize> = (0..cands.len())
@@ -664,11 +667,7 @@ pub fn hop(
         // A segment whose hop was kept is held where it hopped to, not where it settled.
         for ((h, a), t) in held_at.iter_mut().zip(&after).zip(&settle) {
             let hopped = helped && group.iter().any(|&k| cands[k].segment == h.0);
-            (h.1, h.2) = if hopped {
-                (a.sigma, a.metallic)
-            } else {
-                (t.unwrap_or(a.sigma), held_m(*t, a.metallic))
-            };
+            (h.1, h.2) = anchor_target(if hopped { None } else { *t }, a.sigma, a.metallic);
         }
     }
     report.candidates = cands;
@@ -1407,8 +1406,8 @@ mod tests {
         rows[0].patch = Some((0.62, 0.99, 1.0));
         assert_eq!(settled(&cfg, true, &rows[0]), Some(0.62));
         // Held as the patch hypothesis is: a dielectric, m 0; unsettled, at its fitted m.
-        assert_eq!(held_m(Some(0.62), 0.05), 0.0);
-        assert_eq!(held_m(None, 0.05), 0.05);
+        assert_eq!(anchor_target(Some(0.62), 0.9, 0.05), (0.62, 0.0));
+        assert_eq!(anchor_target(None, 0.9, 0.05), (0.9, 0.05));
         // Not on round 0's baked shadings, nor without the anchor or the key.
         assert_eq!(settled(&cfg, false, &rows[0]), None);
         let off = |f: fn(&mut HopConfig)| {
