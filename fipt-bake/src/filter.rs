@@ -27,9 +27,10 @@ pub struct FilterConfig {
     pub sigma_plane_px: f32,
     /// Specular levels (0..6) that are filtered; sharp lobes are left alone.
     pub specular_levels: Vec<usize>,
-    /// 0: the weighted mean of the window; 1: the weighted least-squares plane over the
-    /// centre's tangent plane, read at the centre, which follows a shading gradient up to an
-    /// edge where the mean, one-sided there, is biased.
+    /// 1 (default): the weighted least-squares plane over the centre's tangent plane, read at
+    /// the centre, which follows a shading gradient up to an edge; 0: the weighted mean of the
+    /// window (the reference's denoiser has no such setting), biased there because the window
+    /// is one-sided.
     pub order: usize,
 }
 
@@ -41,7 +42,7 @@ impl Default for FilterConfig {
             normal_power: 64.0,
             sigma_plane_px: 1.0,
             specular_levels: vec![2, 3, 4, 5],
-            order: 0,
+            order: 1,
         }
     }
 }
