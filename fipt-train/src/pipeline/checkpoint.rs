@@ -191,6 +191,15 @@ fn json_diff(a: &serde_json::Value, b: &serde_json::Value, at: &str, out: &mut V
     }
 }
 
+/// Whether the checkpoint in `out` was saved by the running program (its `key.json` names this
+/// executable's hash); false where there is none or it cannot be read.
+pub fn saved_by_this_program(out: &Path) -> bool {
+    std::fs::read_to_string(out.join("checkpoint").join(KEY_FILE))
+        .ok()
+        .and_then(|t| serde_json::from_str::<RunKey>(&t).ok())
+        .is_some_and(|k| k.program == format!("{:016x}", program_hash()))
+}
+
 /// XXH3-64 of the running executable: a different build is a different program. When the
 /// executable cannot be read, a warning says so and the hash is this process's own (time and
 /// pid), so no saved state is taken for this build's and this run's is taken by no other.
@@ -678,6 +687,30 @@ mod tests {
             "{e}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A finished run is the running program's only where its checkpoint's key names this
+    /// executable: another build's key, an unreadable key or none is not (the suite then runs
+    /// the scene again rather than reuse its figures).
+    #[test]
+    fn saved_by_this_program_reads_the_key() {
+        let out = std::env::temp_dir().join(format!("fipt-prog-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        assert!(!saved_by_this_program(&out));
+        std::fs::create_dir_all(out.join("checkpoint")).unwrap();
+        let cfg = crate::config::Config::default();
+        let write = |program: u64| {
+            let key = RunKey::new(program, 7, &cfg, false).unwrap();
+            let text = serde_json::to_string(&key).unwrap();
+            std::fs::write(out.join("checkpoint").join(KEY_FILE), text).unwrap();
+        };
+        write(program_hash());
+        assert!(saved_by_this_program(&out));
+        write(program_hash() ^ 1);
+        assert!(!saved_by_this_program(&out));
+        std::fs::write(out.join("checkpoint").join(KEY_FILE), "{").unwrap();
+        assert!(!saved_by_this_program(&out));
+        std::fs::remove_dir_all(&out).unwrap();
     }
 
     /// A `save_again` killed between setting the old folder aside and putting the new one in

@@ -5,8 +5,8 @@
 //! defaults are chosen on the first and reported on the second.
 //!
 //! A killed suite resumes: a scene whose folder is current is not rendered again, a run whose
-//! `metrics.json` was written with the same config is not run again, and an unfinished run
-//! resumes from its checkpoint (`pipeline::run_with`).
+//! `metrics.json` was written with the same config by the same program is not run again, and
+//! an unfinished run resumes from its checkpoint (`pipeline::run_with`).
 //!
 //! Owns: the suite's folders (`OUT/scenes/`, `OUT/runs/`) and `OUT/suite.json`. Must not touch:
 //! the pipeline's stages.
@@ -16,6 +16,7 @@ pub mod report;
 
 use crate::config::Config;
 use crate::output::write_json;
+use crate::pipeline::checkpoint::saved_by_this_program;
 use crate::pipeline::report::RunReport;
 use crate::pipeline::{RunOptions, run_with};
 use anyhow::{Context, Result};
@@ -97,12 +98,13 @@ pub fn scene_folder(out: &Path, seed: u64, size: SceneSize, quiet: bool) -> Resu
     Ok(dir)
 }
 
-/// The run of one scene: reused when its `metrics.json` was written with this config,
-/// else run (resuming from its checkpoint when there is one). No zoo entry.
+/// The run of one scene: reused when its `metrics.json` was written with this config by this
+/// program (its checkpoint's key names this executable), else run (resuming from its
+/// checkpoint when that still holds). No zoo entry.
 fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
     let metrics = out.join("metrics.json");
     let same_config = Config::load(&out.join("config.json")).is_ok_and(|c| c == *cfg);
-    if same_config && metrics.is_file() {
+    if same_config && saved_by_this_program(out) && metrics.is_file() {
         let text = fipt_core::io::read_text(&metrics)?;
         if let Ok(r) = serde_json::from_str::<RunReport>(&text) {
             return Ok(r);
