@@ -136,8 +136,8 @@ impl RunKey {
         }
         Ok(Self {
             format: FORMAT,
-            program: format!("{program:016x}"),
-            scene: format!("{scene:016x}"),
+            program: hex(program),
+            scene: hex(scene),
             config: c,
         })
     }
@@ -191,13 +191,22 @@ fn json_diff(a: &serde_json::Value, b: &serde_json::Value, at: &str, out: &mut V
     }
 }
 
+/// A key's hashes as written in `key.json`: 16 hex digits.
+fn hex(h: u64) -> String {
+    format!("{h:016x}")
+}
+
+/// The key a checkpoint folder `dir` was saved under; None where it is missing or unreadable.
+fn saved_key(dir: &Path) -> Option<RunKey> {
+    fipt_core::io::read_text(&dir.join(KEY_FILE))
+        .ok()
+        .and_then(|t| serde_json::from_str::<RunKey>(&t).ok())
+}
+
 /// Whether the checkpoint in `out` was saved by the running program (its `key.json` names this
 /// executable's hash); false where there is none or it cannot be read.
 pub fn saved_by_this_program(out: &Path) -> bool {
-    std::fs::read_to_string(out.join("checkpoint").join(KEY_FILE))
-        .ok()
-        .and_then(|t| serde_json::from_str::<RunKey>(&t).ok())
-        .is_some_and(|k| k.program == format!("{:016x}", program_hash()))
+    saved_key(&out.join("checkpoint")).is_some_and(|k| k.program == hex(program_hash()))
 }
 
 /// XXH3-64 of the running executable: a different build is a different program. When the
@@ -277,10 +286,7 @@ impl Checkpoints {
         let key_path = dir.join(KEY_FILE);
         let mut note = None;
         if dir.exists() {
-            let saved = fipt_core::io::read_text(&key_path)
-                .ok()
-                .and_then(|t| serde_json::from_str::<RunKey>(&t).ok());
-            let why = match &saved {
+            let why = match &saved_key(&dir) {
                 None => Some(format!("{} is missing or unreadable", key_path.display())),
                 Some(s) => s.mismatch(key),
             };
