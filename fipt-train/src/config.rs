@@ -144,6 +144,10 @@ pub struct LdrSection {
     pub solve_pixels: usize,
     /// Light samples per pixel and lamp in the emitter solve.
     pub light_samples: usize,
+    /// The emitter solve estimates its light terms from two independent halves of their
+    /// samples, each the instrument of the other's, against the bias that their Monte Carlo
+    /// noise gives least squares (false: ordinary least squares; `docs/ldr.md`).
+    pub solve_instruments: bool,
 }
 
 impl Default for LdrSection {
@@ -156,6 +160,7 @@ impl Default for LdrSection {
             estimate_response: false,
             solve_pixels: 20_000,
             light_samples: 512,
+            solve_instruments: true,
         }
     }
 }

@@ -10,7 +10,10 @@
 //! diffuse albedo, one per part. Within a part the share of direct light varies from pixel to
 //! pixel, which separates k_P from Le_k; the light that walls reflect onto each other (E,
 //! recorded unclipped) fixes the scale. The two are alternated as least squares per channel,
-//! with Le_k ≥ T_k (a clipped lamp emits at least its clip level).
+//! with Le_k ≥ T_k (a clipped lamp emits at least its clip level). D_k and E are Monte Carlo
+//! estimates, and noise in a regressor biases least squares (errors in variables: k_P low, Le_k
+//! high): each is estimated twice, from two independent halves of its samples, and each half
+//! serves as the instrument of the other (`alternate`; `ldr.solve_instruments`).
 //!
 //! With `ldr.estimate_response` (and clipped lamps, and 1,000 pixels or more), the same solve is
 //! run for each response on a grid and the response chosen with it (`super::response`).
@@ -65,11 +68,15 @@ pub struct SolveConfig {
     pub estimate_response: bool,
     /// Whether the exposures were estimated (they then move with γ, `super::response`).
     pub exposures_estimated: bool,
+    /// Estimate the light terms from two independent halves of their samples, each half the
+    /// instrument of the other's (`alternate`); else ordinary least squares.
+    pub instruments: bool,
 }
 
 /// One pixel of the solve: its photo codes and their linear values g(code) under the response
-/// the photos are linearised with, its view's exposure, D_k per clipped lamp, and the L′
-/// samples of E (zero where a direction ends on a clipped lamp or leaves the scene).
+/// the photos are linearised with, its view's exposure, D_k per clipped lamp, the L′ samples of
+/// E (zero where a direction ends on a clipped lamp or leaves the scene), and D_k from each half
+/// of its light samples (empty: no instruments, and E's samples are not split either).
 #[derive(Clone)]
 pub struct SolvePixel {
     pub code: [f64; 3],
@@ -78,6 +85,7 @@ pub struct SolvePixel {
     pub part: usize,
     pub direct: Vec<f32>,
     pub lprime: Vec<[f32; 3]>,
+    pub direct_half: Vec<[f32; 2]>,
 }
 
 /// Groups emitters into lamps: triangles that share a vertex position.
@@ -236,7 +244,7 @@ pub fn solve_clipped(
         .iter()
         .zip(part)
         .zip(terms)
-        .map(|((&i, part), (direct, lprime))| {
+        .map(|((&i, part), t)| {
             let (k, p) = store.origin[i];
             let f = train.views[k as usize].ldr.as_ref().expect("LDR views");
             let e = exposures[k as usize];
@@ -245,8 +253,13 @@ pub fn solve_clipped(
                 value: [0, 1, 2].map(|c| store.pixels.gt[3 * i + c] as f64 * e),
                 exposure: e,
                 part,
-                direct,
-                lprime,
+                direct: t.direct,
+                lprime: t.lprime,
+                direct_half: if cfg.instruments {
+                    t.direct_half
+                } else {
+                    Vec::new()
+                },
             }
         })
         .collect();
@@ -279,9 +292,17 @@ const MIN_RESPONSE_PIXELS: usize = 1000;
 /// Rounds of the alternation.
 pub const ALTERNATIONS: usize = 200;
 
+/// The light terms of one solve pixel (`SolvePixel`'s fields of the same names).
+struct LightTerms {
+    direct: Vec<f32>,
+    direct_half: Vec<[f32; 2]>,
+    lprime: Vec<[f32; 3]>,
+}
+
 /// Per chosen pixel: D_k for every lamp of `lamp_tris` (irradiance/π at unit radiance, area
-/// sampling with visibility) and the samples of E (L′ at the ends of cosine-sampled directions,
-/// zero where one ends on one of those lamps or leaves the scene; E is their mean).
+/// sampling with visibility), D_k from each half of those samples, and the samples of E (L′ at
+/// the ends of cosine-sampled directions, zero where one ends on one of those lamps or leaves
+/// the scene; E is their mean).
 #[allow(clippy::too_many_arguments)]
 fn light_terms(
     mesh: &Mesh,
@@ -292,7 +313,7 @@ fn light_terms(
     chosen: &[usize],
     lamp_tris: &[Vec<u32>],
     cfg: SolveConfig,
-) -> Vec<(Vec<f32>, Vec<[f32; 3]>)> {
+) -> Vec<LightTerms> {
     let lamp_cdf: Vec<(Vec<f32>, f32)> = lamp_tris
         .iter()
         .map(|ts| {
@@ -336,12 +357,12 @@ fn light_terms(
                     *es = [l[0].max(0.0), l[1].max(0.0), l[2].max(0.0)];
                 }
             }
-            let d = lamp_tris
+            let halves: Vec<[f32; 2]> = lamp_tris
                 .iter()
                 .zip(&lamp_cdf)
                 .map(|(ts, (cdf, total))| {
-                    let mut sum = 0.0f32;
-                    for _ in 0..cfg.light_samples {
+                    let mut sum = [0.0f32; 2];
+                    for i in 0..cfg.light_samples {
                         let u = rng.next_f32() * total;
                         let t = ts[cdf.partition_point(|&c| c < u).min(ts.len() - 1)] as usize;
                         let (mut a, mut b) = (rng.next_f32(), rng.next_f32());
@@ -364,12 +385,26 @@ fn light_terms(
                         if accel.occluded(x + n * eps, w, 0.0, r2.sqrt() * (1.0 - 1e-3)) {
                             continue;
                         }
-                        sum += cos_x * cos_l / r2;
+                        sum[usize::from(2 * i >= cfg.light_samples)] += cos_x * cos_l / r2;
                     }
-                    sum * total / (std::f32::consts::PI * cfg.light_samples as f32)
+                    // Samples i < n/2 form the first half.
+                    let n = cfg.light_samples;
+                    let counts = [n.div_ceil(2), n / 2];
+                    [0, 1]
+                        .map(|h| sum[h] * total / (std::f32::consts::PI * counts[h].max(1) as f32))
                 })
                 .collect();
-            (d, e)
+            let n = cfg.light_samples as f32;
+            let first = cfg.light_samples.div_ceil(2) as f32 / n;
+            let d = halves
+                .iter()
+                .map(|h| first * h[0] + (1.0 - first) * h[1])
+                .collect();
+            LightTerms {
+                direct: d,
+                direct_half: halves,
+                lprime: e,
+            }
         })
         .collect()
 }
@@ -377,6 +412,15 @@ fn light_terms(
 /// The alternating solve of one channel: the part albedos k_P for the current radiance, then
 /// the radiance Le_k ≥ T_k for the current albedos (normal equations, projected), on relative
 /// residuals with Cauchy weights; `rounds` rounds. Returns (Le_k, k_P).
+///
+/// Errors in variables: D_k and E are Monte Carlo estimates, and noise in a regressor x
+/// biases least squares, whose Σ w·x² holds the noise's variance (k_P low, then Le_k high).
+/// Where the pixels carry two independent halves of the estimates, each half is the instrument
+/// z of the other half's x, Σ w·z·x in place of Σ w·x² (instrumental variables, symmetrised
+/// over the halves). The Cauchy weights of the sums with instrument half h are read from half
+/// h's residuals, and the light the lamps must explain from the other half's E, so that
+/// neither depends on x's noise. Without halves both are the whole estimate: ordinary least
+/// squares.
 pub fn alternate(
     t: &super::response::ChannelTerms,
     pixels: &[SolvePixel],
@@ -384,29 +428,34 @@ pub fn alternate(
     rounds: usize,
 ) -> (Vec<f64>, Vec<f64>) {
     let nk = t.level.len();
-    let (obs, rest, level) = (&t.obs, &t.rest, &t.level);
+    let (obs, level) = (&t.obs, &t.level);
     let mut le: Vec<f64> = level.clone();
     let mut kd = vec![0.5f64; n_parts];
-    let shading = |j: usize, le: &[f64]| t.shading(j, &pixels[j], le);
+    let half = |j: usize, le: &[f64], h: usize| t.shading_half(j, &pixels[j], le, h);
     // Relative residuals, with Cauchy weights (scale 10 %) against outliers: highlights,
-    // textures within a part.
-    let mut w = vec![0.0f64; obs.len()];
+    // textures within a part. One set per half.
+    let mut w = [vec![0.0f64; obs.len()], vec![0.0f64; obs.len()]];
     for it in 0..rounds {
-        for j in 0..obs.len() {
-            let o = obs[j].max(1e-3);
-            let rel = if it == 0 {
-                0.0
-            } else {
-                (obs[j] - kd[pixels[j].part] * shading(j, &le)) / o
-            };
-            w[j] = 1.0 / (o * o * (1.0 + (rel / 0.1).powi(2)));
+        for (h, w) in w.iter_mut().enumerate() {
+            for (j, wj) in w.iter_mut().enumerate() {
+                let o = obs[j].max(1e-3);
+                let rel = if it == 0 {
+                    0.0
+                } else {
+                    (obs[j] - kd[pixels[j].part] * half(j, &le, h)) / o
+                };
+                *wj = 1.0 / (o * o * (1.0 + (rel / 0.1).powi(2)));
+            }
         }
-        // k_P for the current radiance.
+        // k_P for the current radiance: Σ w·z·I / Σ w·z·x.
         let (mut num, mut den) = (vec![0.0; n_parts], vec![0.0; n_parts]);
         for j in 0..obs.len() {
-            let s = shading(j, &le);
-            num[pixels[j].part] += w[j] * obs[j] * s;
-            den[pixels[j].part] += w[j] * s * s;
+            let s = [half(j, &le, 0), half(j, &le, 1)];
+            let q = pixels[j].part;
+            for h in 0..2 {
+                num[q] += w[h][j] * obs[j] * s[h];
+                den[q] += w[h][j] * s[h] * s[1 - h];
+            }
         }
         for q in 0..n_parts {
             if den[q] > 0.0 {
@@ -416,17 +465,25 @@ pub fn alternate(
         if nk == 0 {
             continue;
         }
-        // Le for the current albedos: normal equations, projected onto Le ≥ T.
+        // Le for the current albedos: the normal equations, projected onto Le ≥ T. Lamp k's
+        // column is k_P·D_k.
         let mut a = vec![vec![0.0f64; nk]; nk];
         let mut b = vec![0.0f64; nk];
+        let mut col = [vec![0.0f64; nk], vec![0.0f64; nk]];
         for (j, px) in pixels.iter().enumerate() {
             let kq = kd[px.part];
-            let r = obs[j] - kq * rest[j];
-            for k in 0..nk {
-                let dk = kq * px.direct[k] as f64;
-                b[k] += w[j] * dk * r;
-                for (akl, &dl) in a[k].iter_mut().zip(&px.direct) {
-                    *akl += w[j] * dk * kq * dl as f64;
+            for (h, col) in col.iter_mut().enumerate() {
+                for (k, ck) in col.iter_mut().enumerate() {
+                    *ck = kq * px.direct_half.get(k).map_or(px.direct[k], |d| d[h]) as f64;
+                }
+            }
+            for h in 0..2 {
+                let r = obs[j] - kq * t.rest_half[j][1 - h];
+                for k in 0..nk {
+                    b[k] += w[h][j] * col[h][k] * r;
+                    for l in 0..nk {
+                        a[k][l] += w[h][j] * col[h][k] * col[1 - h][l];
+                    }
                 }
             }
         }
@@ -441,4 +498,82 @@ pub fn alternate(
         }
     }
     (le, kd)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pixels whose light terms are noisy Monte Carlo estimates: D_k from two halves of the
+    /// samples, each the truth times (1 + noise) with the noise uniform in ±30 %, and E from
+    /// 16 samples spread ±30 % about the truth. The photos hold the true terms.
+    fn noisy_scene(seed: u64) -> (Vec<SolvePixel>, usize, Vec<[f64; 3]>) {
+        let mut rng = Rng::new(seed, 0);
+        let kd: Vec<[f64; 3]> = (0..5)
+            .map(|_| [0, 1, 2].map(|_| 0.2 + 0.6 * rng.next_f32() as f64))
+            .collect();
+        let le = [[30.0, 20.0, 10.0], [8.0, 12.0, 20.0]];
+        let mut noise = |x: f32| x * (1.0 + 0.6 * (rng.next_f32() - 0.5));
+        let pixels = (0..6000)
+            .map(|j| {
+                let part = j % 5;
+                let truth: Vec<f32> = (0..2)
+                    .map(|k| 0.02 * ((j * 7 + k * 3) % 11) as f32 / 10.0)
+                    .collect();
+                let e_true = [0.2f32, 0.25, 0.3];
+                let direct_half: Vec<[f32; 2]> =
+                    truth.iter().map(|&d| [noise(d), noise(d)]).collect();
+                let lprime: Vec<[f32; 3]> = (0..16).map(|_| e_true.map(&mut noise)).collect();
+                let value = [0, 1, 2].map(|c| {
+                    let s =
+                        e_true[c] as f64 + (0..2).map(|k| le[k][c] * truth[k] as f64).sum::<f64>();
+                    kd[part][c] * s
+                });
+                SolvePixel {
+                    code: value,
+                    value,
+                    exposure: 1.0,
+                    part,
+                    direct: direct_half.iter().map(|d| 0.5 * (d[0] + d[1])).collect(),
+                    lprime,
+                    direct_half,
+                }
+            })
+            .collect();
+        (pixels, 5, le.to_vec())
+    }
+
+    #[test]
+    fn instruments_remove_the_bias_of_noisy_light_terms() {
+        let (pixels, parts, le) = noisy_scene(5);
+        let level = vec![[0.1; 3]; 2];
+        // The lamps' mean ratio to the truth over channels.
+        let ratio = |px: &[SolvePixel]| {
+            let fit = super::super::response::solve_radiance(px, parts, &level, [1.0; 3], false);
+            let r: Vec<f64> = fit
+                .iter()
+                .zip(&le)
+                .flat_map(|(f, t)| (0..3).map(move |c| f[c] / t[c]))
+                .collect();
+            r.iter().sum::<f64>() / r.len() as f64
+        };
+        // The same pixels without their halves: ordinary least squares on the whole estimates.
+        let plain: Vec<SolvePixel> = pixels
+            .iter()
+            .map(|p| SolvePixel {
+                direct_half: Vec::new(),
+                ..p.clone()
+            })
+            .collect();
+        let without = ratio(&plain);
+        let with = ratio(&pixels);
+        assert!(
+            (with - 1.0).abs() < 0.02,
+            "with instruments: {with} (without {without})"
+        );
+        assert!(
+            (without - 1.0).abs() > 0.04,
+            "ordinary least squares: {without}"
+        );
+    }
 }

@@ -60,6 +60,9 @@ impl ResponseFit {
 pub struct ChannelTerms {
     pub obs: Vec<f64>,
     pub rest: Vec<f64>,
+    /// E from each half of L′'s samples where the pixel has halves (`SolvePixel::direct_half`),
+    /// else E twice.
+    pub rest_half: Vec<[f64; 2]>,
     pub level: Vec<f64>,
     /// The exposure of each pixel's view under γ.
     pub exposure: Vec<f64>,
@@ -84,23 +87,30 @@ impl ChannelTerms {
             }
         };
         let exposure: Vec<f64> = pixels.iter().map(|p| moved(p.exposure)).collect();
+        let mean = |ls: &[[f32; 3]]| {
+            ls.iter().map(|l| (l[c] as f64).powf(gamma)).sum::<f64>() / ls.len().max(1) as f64
+        };
+        let rest: Vec<f64> = pixels.iter().map(|p| mean(&p.lprime)).collect();
+        let rest_half = pixels
+            .iter()
+            .zip(&rest)
+            .map(|(p, &r)| {
+                let m = p.lprime.len() / 2;
+                if p.direct_half.is_empty() || m == 0 {
+                    [r; 2]
+                } else {
+                    [mean(&p.lprime[..m]), mean(&p.lprime[m..])]
+                }
+            })
+            .collect();
         Self {
             obs: pixels
                 .iter()
                 .zip(&exposure)
                 .map(|(p, e)| p.value[c].powf(gamma) / e)
                 .collect(),
-            rest: pixels
-                .iter()
-                .map(|p| {
-                    let n = p.lprime.len().max(1) as f64;
-                    p.lprime
-                        .iter()
-                        .map(|l| (l[c] as f64).powf(gamma))
-                        .sum::<f64>()
-                        / n
-                })
-                .collect(),
+            rest,
+            rest_half,
             level: level.iter().map(|t| moved(t[c])).collect(),
             exposure,
         }
@@ -112,6 +122,16 @@ impl ChannelTerms {
             + le.iter()
                 .zip(&px.direct)
                 .map(|(l, &d)| l * d as f64)
+                .sum::<f64>()
+    }
+
+    /// Pixel `j`'s shading from half `h` of the light terms' samples (the whole estimate where
+    /// the pixel has no halves).
+    pub fn shading_half(&self, j: usize, px: &SolvePixel, le: &[f64], h: usize) -> f64 {
+        self.rest_half[j][h]
+            + le.iter()
+                .enumerate()
+                .map(|(k, l)| l * px.direct_half.get(k).map_or(px.direct[k], |d| d[h]) as f64)
                 .sum::<f64>()
     }
 }
@@ -257,6 +277,7 @@ mod tests {
                     part,
                     direct,
                     lprime,
+                    direct_half: Vec::new(),
                 }
             })
             .filter(|p| p.code.iter().all(|&c| c > 0.02 && c < 0.98))

@@ -144,6 +144,7 @@ pub fn solve_clipped_lamps(
             estimate_response,
             exposures_estimated: cal.exposure_source
                 == crate::ldr::calibrate::ExposureSource::Estimated,
+            instruments: ctx.cfg.ldr.solve_instruments,
         },
     )
 }
