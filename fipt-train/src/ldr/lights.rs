@@ -255,7 +255,8 @@ pub fn solve_clipped(
                 part,
                 direct: t.direct,
                 lprime: t.lprime,
-                direct_half: if cfg.instruments {
+                // One light sample has no second half to be its instrument.
+                direct_half: if cfg.instruments && cfg.light_samples >= 2 {
                     t.direct_half
                 } else {
                     Vec::new()
