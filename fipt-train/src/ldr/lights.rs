@@ -88,6 +88,14 @@ pub struct SolvePixel {
     pub direct_half: Vec<[f32; 2]>,
 }
 
+impl SolvePixel {
+    /// D_k from half `h` of its light samples, or the whole estimate where the pixel has no
+    /// halves.
+    pub fn direct_of(&self, k: usize, h: usize) -> f32 {
+        self.direct_half.get(k).map_or(self.direct[k], |d| d[h])
+    }
+}
+
 /// Groups emitters into lamps: triangles that share a vertex position.
 fn lamps(mesh: &Mesh, emitters: &[Emitter]) -> Vec<Vec<usize>> {
     let key = |v: Vec3| (v * 1e4).round().as_ivec3();
@@ -358,7 +366,7 @@ fn light_terms(
                     *es = [l[0].max(0.0), l[1].max(0.0), l[2].max(0.0)];
                 }
             }
-            let halves: Vec<[f32; 2]> = lamp_tris
+            let (direct, direct_half): (Vec<f32>, Vec<[f32; 2]>) = lamp_tris
                 .iter()
                 .zip(&lamp_cdf)
                 .map(|(ts, (cdf, total))| {
@@ -391,19 +399,18 @@ fn light_terms(
                     // Samples i < n/2 form the first half.
                     let n = cfg.light_samples;
                     let counts = [n.div_ceil(2), n / 2];
-                    [0, 1]
-                        .map(|h| sum[h] * total / (std::f32::consts::PI * counts[h].max(1) as f32))
+                    let norm = |s: f32, count: usize| {
+                        s * total / (std::f32::consts::PI * count.max(1) as f32)
+                    };
+                    (
+                        norm(sum[0] + sum[1], n),
+                        [0, 1].map(|h| norm(sum[h], counts[h])),
+                    )
                 })
-                .collect();
-            let n = cfg.light_samples as f32;
-            let first = cfg.light_samples.div_ceil(2) as f32 / n;
-            let d = halves
-                .iter()
-                .map(|h| first * h[0] + (1.0 - first) * h[1])
-                .collect();
+                .unzip();
             LightTerms {
-                direct: d,
-                direct_half: halves,
+                direct,
+                direct_half,
                 lprime: e,
             }
         })
@@ -475,7 +482,7 @@ pub fn alternate(
             let kq = kd[px.part];
             for (h, col) in col.iter_mut().enumerate() {
                 for (k, ck) in col.iter_mut().enumerate() {
-                    *ck = kq * px.direct_half.get(k).map_or(px.direct[k], |d| d[h]) as f64;
+                    *ck = kq * px.direct_of(k, h) as f64;
                 }
             }
             for h in 0..2 {

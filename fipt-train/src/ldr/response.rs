@@ -131,7 +131,7 @@ impl ChannelTerms {
         self.rest_half[j][h]
             + le.iter()
                 .enumerate()
-                .map(|(k, l)| l * px.direct_half.get(k).map_or(px.direct[k], |d| d[h]) as f64)
+                .map(|(k, l)| l * px.direct_of(k, h) as f64)
                 .sum::<f64>()
     }
 }
