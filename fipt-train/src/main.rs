@@ -473,6 +473,14 @@ pub fn flag_range(lo: u64, hi: u64) -> clap::builder::RangedU64ValueParser<usize
 }
 
 fn main() {
+    // burn puts some state on its default device, where no device is passed: the optimiser's,
+    // when a fit resumes; the next step moves it to the run's device. That default prefers a
+    // GPU when the wgpu backend is compiled in, so a resumed CPU run would start one. It is the
+    // CPU here unless the user names another.
+    if std::env::var_os("BURN_DEVICE").is_none() {
+        // SAFETY: the first statement of main, before any other thread exists.
+        unsafe { std::env::set_var("BURN_DEVICE", "flex") };
+    }
     fipt_train::alloc::tune();
     let cli = Cli::parse();
     let cmd = cli.cmd.unwrap_or(Cmd::Demo {
