@@ -31,9 +31,14 @@ pub fn reflected(tr: &Trainer, store: &PixelStore, pixels_per_view: &[usize]) ->
     out
 }
 
-/// Loss log of a training run: the mean of each part per epoch, and every step's total.
+/// Log of a training run: the pixels it drew from, the mean of each loss part per epoch, and
+/// every step's total.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct TrainLog {
+    /// The training pixels the fit drew its batches from (saved with the fit, so that a round
+    /// restored from its checkpoint reports them too).
+    #[serde(default)]
+    pub pixels: usize,
     pub epochs: Vec<LossParts>,
     pub step_total: Vec<f32>,
     /// The basin hop after the fit (`hop`), once it has run; None before, or without one.
@@ -174,7 +179,8 @@ impl FitProgress {
                 p.step % shape.steps_per_epoch,
             )
         };
-        let log_ok = p.log.step_total.len() == p.step
+        let log_ok = p.log.pixels == store.len()
+            && p.log.step_total.len() == p.step
             && p.log.epochs.len() == epochs
             && p.in_epoch == in_epoch;
         if p.total != shape.steps || p.step > p.total || !log_ok {
@@ -277,7 +283,10 @@ pub fn fit_resumable(
     let mut p = resume.unwrap_or_else(|| FitProgress {
         step: 0,
         total: shape.steps,
-        log: TrainLog::default(),
+        log: TrainLog {
+            pixels: store.len(),
+            ..TrainLog::default()
+        },
         sum: LossParts::default(),
         in_epoch: 0,
         sampler: Sampler::new(store, run.seed, shape.balanced > 0),

@@ -181,8 +181,6 @@ pub struct RoundWork {
     /// None for round 0 and for shadings from the refinement cache.
     pub refine_paths: Option<PathStats>,
     pub train_s: f64,
-    /// The training pixels the round's fit saw.
-    pub fit_pixels: usize,
 }
 
 impl RoundReport {
@@ -209,7 +207,7 @@ impl RoundReport {
             refine_s: work.refine_s,
             refine_paths: work.refine_paths,
             train_s: work.train_s,
-            fit_pixels: work.fit_pixels,
+            fit_pixels: log.pixels,
             loss_curve: binned(&log.step_total, 200),
             hop: log.hop.clone(),
         }

@@ -316,7 +316,6 @@ impl Rounds {
             store,
             run: &run,
         };
-        self.work.fit_pixels = store.len();
         let (tr0, progress) = self.start_fit(ctx, setup, &of, r)?;
         let ck = &self.ck;
         let mut ck_s = 0.0;
@@ -482,7 +481,6 @@ impl Rounds {
             refine_s: self.work.refine_s,
             refine_paths: self.work.refine_paths.take(),
             train_s: self.work.train_s,
-            fit_pixels: self.work.fit_pixels,
         }
     }
 

@@ -32,6 +32,8 @@ pub struct SuiteJob {
     pub first_seed: u64,
     pub scenes: usize,
     pub size: SceneSize,
+    /// The photos' samples per pixel in place of the size's.
+    pub spp: Option<usize>,
     pub config: Config,
     pub quiet: bool,
 }
@@ -57,7 +59,7 @@ pub fn run_suite(job: &SuiteJob) -> Result<SuiteReport> {
     };
     let mut rows = Vec::new();
     for seed in job.first_seed..end {
-        let scene = scene_folder(&job.out, seed, job.size, job.quiet)?;
+        let scene = scene_folder(&job.out, seed, job.size, job.spp, job.quiet)?;
         let out = job.out.join("runs").join(format!("suite-{seed:03}"));
         let t = std::time::Instant::now();
         let report = run_scene(&scene, &out, &job.config, job.quiet)?;
@@ -74,7 +76,7 @@ pub fn run_suite(job: &SuiteJob) -> Result<SuiteReport> {
         }
         rows.push(row);
     }
-    let r = SuiteReport::new(job.size, rows);
+    let r = SuiteReport::new(job.size, job.spp, rows);
     write_json(&job.out.join("suite.json"), &r)?;
     if !job.quiet {
         r.print();
@@ -82,10 +84,20 @@ pub fn run_suite(job: &SuiteJob) -> Result<SuiteReport> {
     Ok(r)
 }
 
-/// The folder of suite scene `seed`, rendered unless it is there and current.
-pub fn scene_folder(out: &Path, seed: u64, size: SceneSize, quiet: bool) -> Result<PathBuf> {
+/// The folder of suite scene `seed`, rendered (with `spp` samples per pixel in place of the
+/// size's, where given) unless it is there and current.
+pub fn scene_folder(
+    out: &Path,
+    seed: u64,
+    size: SceneSize,
+    spp: Option<usize>,
+    quiet: bool,
+) -> Result<PathBuf> {
     let dir = out.join("scenes").join(format!("suite-{seed:03}"));
-    let desc = generate::room(seed, size);
+    let mut desc = generate::room(seed, size);
+    if let Some(n) = spp {
+        desc.spp = n;
+    }
     let text = serde_json::to_string_pretty(&desc)?;
     let t = std::time::Instant::now();
     if crate::demo::write_scene_text(&dir, &text, &desc.name, quiet)? && !quiet {

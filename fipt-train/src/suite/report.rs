@@ -205,6 +205,9 @@ impl HalfSummary {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SuiteReport {
     pub size: SceneSize,
+    /// The photos' samples per pixel where `--spp` replaced the size's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spp: Option<usize>,
     pub halves: Vec<HalfSummary>,
     pub scenes: Vec<SceneRow>,
 }
@@ -215,7 +218,7 @@ pub fn db(v: Option<f64>) -> String {
 }
 
 impl SuiteReport {
-    pub fn new(size: SceneSize, scenes: Vec<SceneRow>) -> Self {
+    pub fn new(size: SceneSize, spp: Option<usize>, scenes: Vec<SceneRow>) -> Self {
         let halves = ["tuning", "held-out"]
             .iter()
             .map(|h| {
@@ -226,6 +229,7 @@ impl SuiteReport {
             .collect();
         Self {
             size,
+            spp,
             halves,
             scenes,
         }
