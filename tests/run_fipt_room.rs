@@ -784,7 +784,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
     std::thread::sleep(std::time::Duration::from_millis(stop.delay_ms));
     // A resumed run neither discarded its saved state nor failed, unless its state was
     // damaged: then it names the file and the round it discards.
-    let no_discard = |err: &str| {
+    let check_resume = |err: &str| {
         if stop.damaged {
             assert!(
                 err.contains("discarded round 1's saved fit") && err.contains("hashgrid.bin"),
@@ -810,7 +810,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
             "{}: not killed: {st} {err}",
             stop.name
         );
-        no_discard(&err);
+        check_resume(&err);
         eprintln!("killed during {}: {st}", stop.name);
         return;
     }
@@ -820,7 +820,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
     let st = child.wait().unwrap();
     let err = std::fs::read_to_string(&err_path).unwrap();
     assert_eq!(st.code(), Some(130), "Ctrl-C in {}: {st}, {err}", stop.name);
-    no_discard(&err);
+    check_resume(&err);
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "Ctrl-C: not one line: {err}");
     eprintln!("Ctrl-C during {}: {}", stop.name, lines[0]);
