@@ -6,9 +6,10 @@
 //! three emitters are extracted with no false emitter area above 1 % of the true area; the val
 //! views re-rendered and relit from the recovered scene beat the trivial predictors; the scene
 //! model lands in the zoo and renders from there with inserted objects and switched-off
-//! emitters; and the same run killed at points across all stages and rounds (and once stopped
-//! by Ctrl-C, and once resumed over a damaged saved table) resumes to the same metrics to 1e-4,
-//! never showing a partial file.
+//! emitters; and a run killed at points across all stages and rounds (and once stopped by
+//! Ctrl-C, and once resumed over a damaged saved table) resumes to the metrics of the same run
+//! uninterrupted to 1e-4, never showing a partial file (these runs fit 8 views with a small
+//! config).
 
 mod common;
 
@@ -26,10 +27,10 @@ fn scene_dir() -> PathBuf {
     root().join("scenes/fipt-room")
 }
 
-fn run(out: &Path, config: &Path, zoo: Option<&Path>) -> Value {
+fn run(scene: &Path, out: &Path, config: &Path, zoo: Option<&Path>) -> Value {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_fipt-train"));
     cmd.args(["run", "--json", "--scene"])
-        .arg(scene_dir())
+        .arg(scene)
         .arg("--out")
         .arg(out)
         .arg("--config")
@@ -115,7 +116,7 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     let _ = std::fs::remove_dir_all(&base);
     let fast = root().join("configs/fast.json");
     let zoo = base.join("zoo");
-    let m = run(&base.join("a"), &fast, Some(&zoo));
+    let m = run(&scene_dir(), &base.join("a"), &fast, Some(&zoo));
     let get = |m: &Value, k: &str| m[k].as_f64().unwrap_or_else(|| panic!("{k} missing"));
     eprintln!(
         "fast run: {}",
@@ -571,16 +572,23 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         "{err}"
     );
 
-    // The same command, killed (SIGKILL) at points across every stage and round and once
-    // stopped by Ctrl-C (SIGINT) during a fit, each time run again: it resumes from its
-    // checkpoints, never shows a partial file, and ends with the uninterrupted run's metrics
-    // to 1e-4 (the whole metrics.json but times, paths and the resume note).
+    // A run killed (SIGKILL) at points across every stage and round and once stopped by
+    // Ctrl-C (SIGINT) during a fit, each time run again: it resumes from its checkpoints, never
+    // shows a partial file, and ends with the uninterrupted run's metrics to 1e-4 (the whole
+    // metrics.json but times, paths and the resume note) and its scene model. Both runs fit the
+    // first views of the scene with a small config (`stops_config`): what is compared is
+    // resuming, not the fit's quality.
+    let small = base.join("small");
+    common::small_scene(&small, STOP_VIEWS, true);
+    let cfg = stops_config(&base);
+    let c = base.join("c");
+    let mc = run(&small, &c, &cfg, None);
     let b = base.join("b");
     let stops = [
-        Stop::kill("the bake", |o, _| o.join("config.json").exists(), 3000),
+        Stop::kill("the bake", |o, _| o.join("config.json").exists(), 2000),
         Stop {
             name: "round 0's fit (Ctrl-C)",
-            when: |o, _| newest_step(o, 0) >= Some(100),
+            when: |o, _| newest_step(o, 0) >= Some(STOP_EVERY),
             delay_ms: 0,
             sigint: true,
             contend: false,
@@ -588,14 +596,22 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         },
         Stop {
             contend: true,
-            ..Stop::kill("round 0's fit", |o, _| newest_step(o, 0) >= Some(300), 100)
+            ..Stop::kill(
+                "round 0's fit",
+                |o, _| newest_step(o, 0) >= Some(3 * STOP_EVERY),
+                100,
+            )
         },
         Stop::kill(
             "refinement 1",
             |o, _| o.join("checkpoint/round0/report.json").exists(),
             1500,
         ),
-        Stop::kill("round 1's fit", |o, _| newest_step(o, 1) >= Some(200), 100),
+        Stop::kill(
+            "round 1's fit",
+            |o, _| newest_step(o, 1) >= Some(2 * STOP_EVERY),
+            100,
+        ),
         // A byte flipped in round 1's newest saved table: the run names the file, discards
         // that round's fit and fits it again; it is killed once the new fit has saved a step,
         // and the next run resumes that fit.
@@ -603,7 +619,7 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
             damaged: true,
             ..Stop::kill(
                 "round 1's fit again",
-                |o, _| matches!(newest_step(o, 1), Some(s) if s < 200),
+                |o, _| matches!(newest_step(o, 1), Some(s) if s < 2 * STOP_EVERY),
                 100,
             )
         },
@@ -611,12 +627,12 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
         Stop::kill("the re-renders", |o, pid| staged(o, "render", pid), 1000),
     ];
     for stop in &stops {
-        interrupt(&b, &fast, stop);
+        interrupt(&small, &b, &cfg, stop);
         assert_complete(&b);
     }
     // The last run, after every fit has finished, restores all rounds and reports them as the
     // uninterrupted run did (the fit pixels of each round among them).
-    let o = run_cmd(&b, &fast).output().unwrap();
+    let o = run_cmd(&small, &b, &cfg).output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "the last run: {err}");
     assert!(!err.contains("discarded"), "the last run: {err}");
@@ -627,13 +643,13 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
     );
     assert_complete(&b);
     let mut diffs = Vec::new();
-    same_json(&m, &m2, "", &mut diffs);
+    same_json(&mc, &m2, "", &mut diffs);
     assert!(diffs.is_empty(), "resumed vs uninterrupted: {diffs:?}");
     // The scene models agree exactly: the f16 table byte for byte, the network weights value
     // for value (burn's record files also hold per-process parameter ids).
     let read = |d: &str| std::fs::read(base.join(d).join("model/hashgrid.f16")).unwrap();
     assert!(
-        read("a") == read("b"),
+        read("c") == read("b"),
         "model/hashgrid.f16 differs after resuming"
     );
     let device = burn::tensor::Device::flex();
@@ -643,7 +659,7 @@ fn fast_run_recovers_materials_and_emitters_deterministically() {
             .model
             .net_params()
     };
-    assert!(nets("a") == nets("b"), "the networks differ after resuming");
+    assert!(nets("c") == nets("b"), "the networks differ after resuming");
     let leftovers: Vec<_> = walk(&b)
         .into_iter()
         .filter(|p| p.to_string_lossy().contains(".tmp"))
@@ -676,6 +692,38 @@ fn constant_predictor_scores() -> ([f64; 3], f32) {
         ],
         c.sigma,
     )
+}
+
+/// The train views of the reference scene that the stopped runs fit.
+const STOP_VIEWS: usize = 8;
+
+/// The steps between the stopped runs' checkpoints.
+const STOP_EVERY: usize = 50;
+
+/// `configs/fast.json` made small for the stopped runs: a small grid and networks, fits of 400
+/// steps of 2048 pixels saved every `STOP_EVERY` steps, a coarser voxel grid for the bake, fewer
+/// samples in refinement, the albedo maps and the re-renders. Every stage and round of the fast
+/// config still runs, the hop included.
+fn stops_config(dir: &Path) -> PathBuf {
+    let mut c = read_json(&root().join("configs/fast.json"));
+    let t = &mut c["train"];
+    t["batch"] = 2048.into();
+    t["min_steps"] = 400.into();
+    t["grid"]["levels"] = 8.into();
+    t["grid"]["log2_table"] = 14.into();
+    t["emission_depth"] = 3.into();
+    t["emission_width"] = 64.into();
+    c["checkpoint"]["every_steps"] = STOP_EVERY.into();
+    c["bake"]["voxel_res"] = 64.into();
+    let paths = &mut c["refine"]["paths"];
+    paths["samples"] = serde_json::json!({"diffuse": 8, "specular": [4, 4, 4, 4, 4, 4]});
+    paths["light_samples"] = 8.into();
+    c["render"]["spp"] = 4.into();
+    c["render"]["relight_spp"] = 4.into();
+    c["maps"]["albedo_samples"] = 8.into();
+    let p = dir.join("stops.json");
+    std::fs::write(&p, c.to_string()).unwrap();
+    p
 }
 
 /// One interruption of a run: once `when` holds for its output folder and process id, wait
@@ -719,11 +767,11 @@ fn staged(out: &Path, name: &str, pid: u32) -> bool {
     out.join(format!(".{name}.tmp-{pid}.tmp")).exists()
 }
 
-/// `fipt-train run --json --no-zoo` of the reference scene into `out` with `config`.
-fn run_cmd(out: &Path, config: &Path) -> Command {
+/// `fipt-train run --json --no-zoo` of `scene` into `out` with `config`.
+fn run_cmd(scene: &Path, out: &Path, config: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_fipt-train"));
     c.args(["run", "--json", "--no-zoo", "--scene"])
-        .arg(scene_dir())
+        .arg(scene)
         .arg("--out")
         .arg(out)
         .arg("--config")
@@ -731,10 +779,10 @@ fn run_cmd(out: &Path, config: &Path) -> Command {
     c
 }
 
-/// Starts `fipt-train run` on the fast config into `out` and stops it as `stop` says. A
+/// Starts `fipt-train run` of `scene` with `config` into `out` and stops it as `stop` says. A
 /// SIGINT must end it with exit code 130, one line on stderr, and a checkpoint of the step
 /// that line names.
-fn interrupt(out: &Path, config: &Path, stop: &Stop) {
+fn interrupt(scene: &Path, out: &Path, config: &Path, stop: &Stop) {
     std::fs::create_dir_all(out).unwrap();
     if stop.damaged {
         let newest = newest_step(out, 1).expect("round 1's saved fit");
@@ -745,7 +793,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
         std::fs::write(&table, bytes).unwrap();
     }
     let err_path = out.with_extension("stderr");
-    let mut child = run_cmd(out, config)
+    let mut child = run_cmd(scene, out, config)
         .stdout(std::process::Stdio::null())
         .stderr(std::fs::File::create(&err_path).unwrap())
         .spawn()
@@ -764,7 +812,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
     if stop.contend {
-        let o = run_cmd(out, config).output().unwrap();
+        let o = run_cmd(scene, out, config).output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(
             o.status.code(),
@@ -845,7 +893,7 @@ fn interrupt(out: &Path, config: &Path, stop: &Stop) {
         Some(step),
         "the checkpoint is not the step the message names"
     );
-    assert!(step >= 100);
+    assert!(step >= STOP_EVERY);
 }
 
 /// Every file under `dir`, recursively.

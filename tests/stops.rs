@@ -1,8 +1,9 @@
-//! Stopping `bake` and `render` on the reference scene: SIGKILL and Ctrl-C (SIGINT) at random
-//! points, five times each, into one output folder. After every stop the folder holds no
-//! partial file and each output set is complete or absent; a Ctrl-C ends with exit 130 and one
-//! line. The same command then completes with outputs equal, byte for byte, to an uninterrupted
-//! run's. A second writer into a folder in use is refused with the holder's pid.
+//! Stopping `bake` (on 8 views of the reference scene) and `render` (on its val views): SIGKILL
+//! and Ctrl-C (SIGINT) at random points, five times each, into one output folder. After every
+//! stop the folder holds no partial file and each output set is complete or absent; a Ctrl-C
+//! ends with exit 130 and one line. The same command then completes with outputs equal, byte
+//! for byte, to an uninterrupted run's. A second writer into a folder in use is refused with
+//! the holder's pid.
 
 mod common;
 
@@ -231,10 +232,14 @@ fn bake_stopped_anywhere_finishes_like_an_uninterrupted_bake() {
         r#"{"bake": {"voxel_res": 64, "samples": {"diffuse": 4, "specular": [2, 2, 2, 2, 2, 2]}}}"#,
     )
     .unwrap();
+    // The first 8 train views: a bake of the whole scene takes 7 times as long and stops no
+    // differently.
+    let scene = root.join("scene");
+    common::small_scene(&scene, 8, false);
     let args: Vec<String> = ["bake", "--json", "--scene"]
         .iter()
         .map(|s| s.to_string())
-        .chain([scene_dir().display().to_string()])
+        .chain([scene.display().to_string()])
         .chain(["--config".to_string(), cfg.display().to_string()])
         .collect();
     // `shading/` is whole or absent; `bake.json` is there only beside the whole set.

@@ -2,11 +2,12 @@
 //! drawn, rendered by fipt's own path tracer (256-spp photos, a quarter of the small size's, to
 //! shorten the render) and run through the whole method; its k_d and σ beat the best constant
 //! predictors (scored by the same scorer) by margins a broken fit would miss, every part is in
-//! the table, the emitters are found; and a second `suite` call reuses the cached scene and run
-//! and reports the same figures.
+//! the table, the emitters are found; a second `suite` call reuses the cached scene and run
+//! and reports the same figures, and a third, after the run's copy of the room's stamp was
+//! changed, runs it again.
 
 use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn suite(out: &std::path::Path) -> Value {
@@ -70,9 +71,34 @@ fn small_suite_scene_beats_the_best_constants_and_resumes() {
     let h = &r["halves"][0];
     assert_eq!(h["half"], "held-out");
     assert!(h["glossy_parts"].as_u64().unwrap() >= 2);
-    // Cached scene and run: the same figures.
+    // The finished run carries the stamp of the room it ran on.
+    let run = out.join("runs/suite-001");
+    let stamp = |p: &Path| std::fs::read_to_string(p).unwrap();
+    assert_eq!(
+        stamp(&run.join("scene.stamp")),
+        stamp(&out.join("scenes/suite-001/demo.stamp"))
+    );
+    let written = || {
+        std::fs::metadata(run.join("metrics.json"))
+            .unwrap()
+            .modified()
+            .unwrap()
+    };
+    let first = written();
+    // Cached scene and run: the same figures, from the run's metrics.json as it was.
     let again = suite(&out);
     assert_eq!(again["scenes"], r["scenes"]);
+    assert_eq!(written(), first, "the finished run was not reused");
+    // A run that ended on another rendering of the room (another `--spp`, say) is not reused:
+    // it is run again, here resumed from its checkpoint, to the same figures.
+    std::fs::write(run.join("scene.stamp"), "another rendering").unwrap();
+    let third = suite(&out);
+    assert_ne!(written(), first, "a run of another rendering was reused");
+    let t = &third["scenes"][0];
+    for k in ["kd_psnr", "roughness_psnr", "view_psnr", "relight_psnr"] {
+        let (a, b) = (s[k].as_f64().unwrap(), t[k].as_f64().unwrap());
+        assert!((a - b).abs() <= 1e-4 * a.abs(), "{k}: {a} then {b}");
+    }
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -1,8 +1,8 @@
 //! `fipt-train run --backend wgpu` end to end on a small scene (the first 6 train views of the
 //! Mitsuba reference scene, a small model, 150 steps, no refinement), against the same command
 //! on flex with the same algorithm (`train.grid_place = device`: table on the device, dense
-//! Adam) and with the CPU path (`host`: fused op, sparse Adam). Built and run only with
-//! `--features wgpu` (README test command; CI runs it on Mesa's lavapipe).
+//! Adam). Built and run only with `--features wgpu` (README test command; CI runs it on Mesa's
+//! lavapipe).
 //!
 //! Tolerance: wgpu and flex run the same arithmetic in another summation order (GPU reductions),
 //! so the fits drift apart by rounding amplified over the steps. The basin hop is off: its
@@ -10,9 +10,10 @@
 //! flex run did not). Measured on this machine (lavapipe): the last step's loss 0.001 % apart,
 //! k_d 0.09 dB, a′ 0.014 dB, σ 0.47 dB (σ is the touchiest: it sits on the sigmoid's flat end
 //! over most of the scene); for scale, σ moves by 0.31 dB between training seeds 0 and 1 on
-//! flex. Bounds: the last loss within 1 %, k_d and a′
-//! within 0.3 dB, σ within 0.6 dB, the emitter IoU within 0.02. The test prints all four runs,
-//! the CPU path (host grid, sparse Adam) and the second seed included.
+//! flex. Bounds: the last loss within 1 %, k_d and a′ within 0.3 dB, σ within 0.6 dB, the emitter
+//! IoU within 0.02.
+
+mod common;
 
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -22,43 +23,8 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// The first train views of fipt-room that the runs fit.
 const VIEWS: usize = 6;
-
-/// A scene folder holding the first `VIEWS` train views of fipt-room (links to its files).
-fn small_scene(dir: &Path) {
-    let src = root().join("scenes/fipt-room");
-    let _ = std::fs::remove_dir_all(dir);
-    std::fs::create_dir_all(dir.join("train")).unwrap();
-    for f in ["scene.obj", "scene_meta.json", "textures"] {
-        std::os::unix::fs::symlink(src.join(f), dir.join(f)).unwrap();
-    }
-    let t: Value =
-        serde_json::from_str(&std::fs::read_to_string(src.join("train/transforms.json")).unwrap())
-            .unwrap();
-    let mut t2 = t.clone();
-    t2["frames"] = Value::Array(t["frames"].as_array().unwrap()[..VIEWS].to_vec());
-    std::fs::write(dir.join("train/transforms.json"), t2.to_string()).unwrap();
-    for entry in std::fs::read_dir(src.join("train")).unwrap() {
-        let folder = entry.unwrap().path();
-        if !folder.is_dir() {
-            continue;
-        }
-        let name = folder.file_name().unwrap().to_owned();
-        std::fs::create_dir_all(dir.join("train").join(&name)).unwrap();
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .collect();
-        files.sort();
-        for f in files.iter().take(VIEWS) {
-            std::os::unix::fs::symlink(
-                f,
-                dir.join("train").join(&name).join(f.file_name().unwrap()),
-            )
-            .unwrap();
-        }
-    }
-}
 
 /// `configs/fast.json` shrunk: a small grid and networks, 150 steps of 2048, no basin hop, no
 /// refinement, no re-renders.
@@ -117,13 +83,8 @@ fn metrics(m: &Value) -> Vec<f64> {
 fn wgpu_run_matches_flex() {
     let tmp = std::env::temp_dir().join(format!("fipt-wgpu-run-{}", std::process::id()));
     let scene = tmp.join("scene");
-    small_scene(&scene);
-    let runs = [
-        ("wgpu", "auto", 0),
-        ("flex", "device", 0),
-        ("flex", "host", 0),
-        ("flex", "device", 1),
-    ];
+    common::small_scene(&scene, VIEWS, false);
+    let runs = [("wgpu", "auto", 0), ("flex", "device", 0)];
     let mut last_loss = Vec::new();
     let m: Vec<Vec<f64>> = runs
         .iter()

@@ -305,7 +305,7 @@ fn gt_maps(sc: &DemoScene, cam: &Camera, view_key: u64) -> (ViewMaps, Vec<f32>, 
 }
 
 /// The cache stamp: the description and the code version.
-fn stamp(text: &str) -> String {
+pub(crate) fn stamp(text: &str) -> String {
     let mut h = Fnv64::default();
     h.bytes(text.as_bytes());
     h.bytes(env!("CARGO_PKG_VERSION").as_bytes());
@@ -313,6 +313,12 @@ fn stamp(text: &str) -> String {
 }
 
 const STAMP_FILE: &str = "demo.stamp";
+
+/// The cache stamp of the scene written into `dir`, if there is one.
+pub fn scene_stamp(dir: &Path) -> Option<String> {
+    let t = std::fs::read_to_string(dir.join(STAMP_FILE)).ok()?;
+    Some(t.trim().to_owned())
+}
 
 /// Writes the demo scene into `dir` unless it is there and current; returns whether it was
 /// written.
@@ -325,7 +331,7 @@ pub fn write_scene(dir: &Path, quiet: bool) -> Result<bool> {
 /// it was written.
 pub fn write_scene_text(dir: &Path, text: &str, what: &str, quiet: bool) -> Result<bool> {
     let s = stamp(text);
-    if std::fs::read_to_string(dir.join(STAMP_FILE)).is_ok_and(|t| t.trim() == s) {
+    if scene_stamp(dir).is_some_and(|t| t == s) {
         return Ok(false);
     }
     let d: Desc = serde_json::from_str(text).with_context(|| format!("{what}: malformed"))?;

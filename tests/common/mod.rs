@@ -42,3 +42,44 @@ pub fn assert_readable(p: &Path) {
         _ => {}
     }
 }
+
+/// A scene folder at `dir` holding the first `views` train views of the reference scene and,
+/// with `val`, its val views and relighting set (links to its files).
+pub fn small_scene(dir: &Path, views: usize, val: bool) {
+    let src = scene_dir();
+    let _ = std::fs::remove_dir_all(dir);
+    std::fs::create_dir_all(dir.join("train")).unwrap();
+    let mut links = vec!["scene.obj", "scene_meta.json", "textures"];
+    if val {
+        links.extend(["val", "relight.json"]);
+    }
+    for f in links {
+        std::os::unix::fs::symlink(src.join(f), dir.join(f)).unwrap();
+    }
+    let t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(src.join("train/transforms.json")).unwrap())
+            .unwrap();
+    let mut t2 = t.clone();
+    t2["frames"] = serde_json::Value::Array(t["frames"].as_array().unwrap()[..views].to_vec());
+    std::fs::write(dir.join("train/transforms.json"), t2.to_string()).unwrap();
+    for entry in std::fs::read_dir(src.join("train")).unwrap() {
+        let folder = entry.unwrap().path();
+        if !folder.is_dir() {
+            continue;
+        }
+        let name = folder.file_name().unwrap().to_owned();
+        std::fs::create_dir_all(dir.join("train").join(&name)).unwrap();
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        files.sort();
+        for f in files.iter().take(views) {
+            std::os::unix::fs::symlink(
+                f,
+                dir.join("train").join(&name).join(f.file_name().unwrap()),
+            )
+            .unwrap();
+        }
+    }
+}

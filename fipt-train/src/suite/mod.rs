@@ -5,8 +5,9 @@
 //! defaults are chosen on the first and reported on the second.
 //!
 //! A killed suite resumes: a scene whose folder is current is not rendered again, a run whose
-//! `metrics.json` was written with the same config by the same program is not run again, and
-//! an unfinished run resumes from its checkpoint (`pipeline::run_with`).
+//! `metrics.json` was written for the scene as it is now, with the same config, by the same
+//! program is not run again, and an unfinished run resumes from its checkpoint
+//! (`pipeline::run_with`).
 //!
 //! Owns: the suite's folders (`OUT/scenes/`, `OUT/runs/`) and `OUT/suite.json`. Must not touch:
 //! the pipeline's stages.
@@ -110,22 +111,87 @@ pub fn scene_folder(
     Ok(dir)
 }
 
-/// The run of one scene: reused when its `metrics.json` was written with this config by this
-/// program (its checkpoint's key names this executable), else run (resuming from its
-/// checkpoint when that still holds). No zoo entry.
+/// The run of one scene: reused when its `metrics.json` was written for the scene as it is now
+/// (`same_scene`) with this config by this program (its checkpoint's key names this
+/// executable), else run (resuming from its checkpoint when that still holds). No zoo entry.
 fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
     let metrics = out.join("metrics.json");
     let same_config = Config::load(&out.join("config.json")).is_ok_and(|c| c == *cfg);
-    if same_config && saved_by_this_program(out) && metrics.is_file() {
+    if same_scene(scene, out) && same_config && saved_by_this_program(out) && metrics.is_file() {
         let text = fipt_core::io::read_text(&metrics)?;
         if let Ok(r) = serde_json::from_str::<RunReport>(&text) {
             return Ok(r);
         }
+    }
+    // The scene's stamp is taken away for the run and copied back once it has ended, so a run
+    // stopped part-way is never taken for a finished one of this scene.
+    let scene_stamp = crate::demo::scene_stamp(scene);
+    let stamp = out.join(SCENE_STAMP);
+    match std::fs::remove_file(&stamp) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("{}: cannot remove", stamp.display()));
+        }
+        _ => {}
     }
     let opts = RunOptions {
         quiet,
         oracle: false,
         zoo: None,
     };
-    run_with(scene, out, cfg, &opts).with_context(|| format!("suite run {}", out.display()))
+    let report =
+        run_with(scene, out, cfg, &opts).with_context(|| format!("suite run {}", out.display()))?;
+    if let Some(s) = scene_stamp {
+        fipt_core::io::write_bytes_atomic(&stamp, s.as_bytes())
+            .with_context(|| format!("{}: cannot write", stamp.display()))?;
+    }
+    Ok(report)
+}
+
+/// A run folder's copy of the cache stamp of the scene its `metrics.json` was written for.
+const SCENE_STAMP: &str = "scene.stamp";
+
+/// Whether the run in `out` ended on the scene in `scene` as it is now: a scene rendered again
+/// (another `--spp` or `--size`, another code version) has another stamp.
+fn same_scene(scene: &Path, out: &Path) -> bool {
+    let copy = std::fs::read_to_string(out.join(SCENE_STAMP));
+    crate::demo::scene_stamp(scene).is_some_and(|s| copy.is_ok_and(|c| c.trim() == s))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_is_reused_only_for_the_scene_it_ended_on() {
+        let dir = std::env::temp_dir().join(format!("fipt-suite-stamp-{}", std::process::id()));
+        let (scene, out) = (dir.join("scene"), dir.join("run"));
+        std::fs::create_dir_all(&scene).unwrap();
+        std::fs::create_dir_all(&out).unwrap();
+        let text = serde_json::to_string(&generate::room(1, SceneSize::Small)).unwrap();
+        let mut other = generate::room(1, SceneSize::Small);
+        other.spp += 1;
+        let other = serde_json::to_string(&other).unwrap();
+        let stamp_scene = |t: &str| {
+            // The stamp that `demo::write_scene_text` leaves, without rendering the room.
+            std::fs::write(scene.join("demo.stamp"), crate::demo::stamp(t)).unwrap();
+        };
+        // No scene stamp, no copy: not the same scene.
+        assert!(!same_scene(&scene, &out));
+        stamp_scene(&text);
+        assert!(!same_scene(&scene, &out), "no copy in the run folder");
+        std::fs::write(
+            out.join(SCENE_STAMP),
+            crate::demo::scene_stamp(&scene).unwrap(),
+        )
+        .unwrap();
+        assert!(same_scene(&scene, &out));
+        // The same room with other samples per pixel is another scene.
+        stamp_scene(&other);
+        assert!(!same_scene(&scene, &out), "the photos changed");
+        stamp_scene(&text);
+        assert!(same_scene(&scene, &out));
+        std::fs::remove_file(scene.join("demo.stamp")).unwrap();
+        assert!(!same_scene(&scene, &out), "no scene stamp");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
