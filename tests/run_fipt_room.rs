@@ -13,6 +13,7 @@
 
 mod common;
 
+use common::scene_dir;
 use fipt_core::scene::{Dataset, LoadOptions, MapKind};
 use fipt_train::pipeline::evaluate::constant_predictor;
 use serde_json::Value;
@@ -21,10 +22,6 @@ use std::process::Command;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn scene_dir() -> PathBuf {
-    root().join("scenes/fipt-room")
 }
 
 fn run(scene: &Path, out: &Path, config: &Path, zoo: Option<&Path>) -> Value {

@@ -117,7 +117,12 @@ pub fn scene_folder(
 fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunReport> {
     let metrics = out.join("metrics.json");
     let same_config = Config::load(&out.join("config.json")).is_ok_and(|c| c == *cfg);
-    if same_scene(scene, out) && same_config && saved_by_this_program(out) && metrics.is_file() {
+    let scene_stamp = crate::demo::scene_stamp(scene);
+    if same_scene(scene_stamp.as_deref(), out)
+        && same_config
+        && saved_by_this_program(out)
+        && metrics.is_file()
+    {
         let text = fipt_core::io::read_text(&metrics)?;
         if let Ok(r) = serde_json::from_str::<RunReport>(&text) {
             return Ok(r);
@@ -125,7 +130,6 @@ fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunR
     }
     // The scene's stamp is taken away for the run and copied back once it has ended, so a run
     // stopped part-way is never taken for a finished one of this scene.
-    let scene_stamp = crate::demo::scene_stamp(scene);
     let stamp = out.join(SCENE_STAMP);
     match std::fs::remove_file(&stamp) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
@@ -150,11 +154,11 @@ fn run_scene(scene: &Path, out: &Path, cfg: &Config, quiet: bool) -> Result<RunR
 /// A run folder's copy of the cache stamp of the scene its `metrics.json` was written for.
 const SCENE_STAMP: &str = "scene.stamp";
 
-/// Whether the run in `out` ended on the scene in `scene` as it is now: a scene rendered again
-/// (another `--spp` or `--size`, another code version) has another stamp.
-fn same_scene(scene: &Path, out: &Path) -> bool {
+/// Whether the run in `out` ended on the scene whose stamp (`demo::scene_stamp`) is `stamp`: a
+/// scene rendered again (another `--spp` or `--size`, another code version) has another stamp.
+fn same_scene(stamp: Option<&str>, out: &Path) -> bool {
     let copy = std::fs::read_to_string(out.join(SCENE_STAMP));
-    crate::demo::scene_stamp(scene).is_some_and(|s| copy.is_ok_and(|c| c.trim() == s))
+    stamp.is_some_and(|s| copy.is_ok_and(|c| c.trim() == s))
 }
 
 #[cfg(test)]
@@ -175,23 +179,24 @@ mod tests {
             // The stamp that `demo::write_scene_text` leaves, without rendering the room.
             std::fs::write(scene.join("demo.stamp"), crate::demo::stamp(t)).unwrap();
         };
+        let same = |scene: &Path| same_scene(crate::demo::scene_stamp(scene).as_deref(), &out);
         // No scene stamp, no copy: not the same scene.
-        assert!(!same_scene(&scene, &out));
+        assert!(!same(&scene));
         stamp_scene(&text);
-        assert!(!same_scene(&scene, &out), "no copy in the run folder");
+        assert!(!same(&scene), "no copy in the run folder");
         std::fs::write(
             out.join(SCENE_STAMP),
             crate::demo::scene_stamp(&scene).unwrap(),
         )
         .unwrap();
-        assert!(same_scene(&scene, &out));
+        assert!(same(&scene));
         // The same room with other samples per pixel is another scene.
         stamp_scene(&other);
-        assert!(!same_scene(&scene, &out), "the photos changed");
+        assert!(!same(&scene), "the photos changed");
         stamp_scene(&text);
-        assert!(same_scene(&scene, &out));
+        assert!(same(&scene));
         std::fs::remove_file(scene.join("demo.stamp")).unwrap();
-        assert!(!same_scene(&scene, &out), "no scene stamp");
+        assert!(!same(&scene), "no scene stamp");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
