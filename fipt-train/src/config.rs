@@ -578,6 +578,10 @@ pub struct EmitterSection {
     /// Candidates no photo saw, next to an emitter, take its radiance instead of being dropped
     /// (false: the reference). See `fipt_bake::emitters`.
     pub fill_unseen: bool,
+    /// A triangle's radiance is the median of its interior photo pixels, not of the outline
+    /// pixels that mix it with what lies behind (false: every pixel, the reference). See
+    /// `fipt_bake::emitters` and `docs/departures/emitter-interior.md`.
+    pub interior: bool,
 }
 
 impl Default for EmitterSection {
@@ -587,6 +591,7 @@ impl Default for EmitterSection {
             threshold: 0.01,
             min_unexplained: 0.5,
             fill_unseen: true,
+            interior: false,
         }
     }
 }

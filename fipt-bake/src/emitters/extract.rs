@@ -16,6 +16,14 @@
 //! so a hidden face of two triangles fills from the faces around it. Its sides are unknown: it
 //! emits from both.
 //!
+//! A third (`interior`): a photo pixel is the mean of the radiance over its footprint, so a
+//! pixel on a lamp's outline mixes the lamp with what lies behind it, and a small lamp seen a
+//! few pixels wide is mostly outline. The median is then taken over a triangle's interior
+//! pixels only, those whose eight neighbours' pixel-centre rays also hit candidates; a triangle
+//! seen at outline pixels only takes the pixel-weighted mean radiance of its edge neighbours
+//! measured on interior pixels (as `fill_unseen` spreads it), and keeps its own median where
+//! none is reached.
+//!
 //! Owns: per-triangle sampling, the decision and the radiance statistics. Must not touch: the
 //! mask itself (it is queried through a closure, a batch at a time).
 
@@ -72,6 +80,9 @@ pub struct ExtractConfig {
     /// Give unseen candidates next to emitters their neighbours' radiance (false: dropped, the
     /// reference).
     pub fill_unseen: bool,
+    /// Measure a triangle's radiance on its interior pixels (false: on every pixel that saw
+    /// it, the reference).
+    pub interior: bool,
     pub seed: u64,
 }
 
@@ -121,10 +132,15 @@ pub fn extract(
         }
     }
     let candidate: Vec<bool> = mean_alpha.iter().map(|&a| a > threshold).collect();
-    // Per candidate: observed radiance and unexplained share of each pixel that saw it.
-    type Seen = (Vec<[f32; 3]>, Vec<f32>, [u32; 2]);
+    // Per candidate: observed radiance and unexplained share of each pixel that saw it, and
+    // the observed radiance of its interior pixels.
+    type Seen = (Vec<[f32; 3]>, Vec<f32>, [u32; 2], Vec<[f32; 3]>);
     let mut seen: std::collections::HashMap<u32, Seen> = Default::default();
     for v in views {
+        let hit_candidate = |p: usize| {
+            let t = v.hits.tri[p];
+            t >= 0 && candidate[t as usize]
+        };
         for (p, &t) in v.hits.tri.iter().enumerate() {
             if t >= 0 && candidate[t as usize] {
                 let gt = [v.image[3 * p], v.image[3 * p + 1], v.image[3 * p + 2]];
@@ -141,30 +157,42 @@ pub fn extract(
                     let front = mesh.normal(t as usize).dot(*d) < 0.0;
                     e.2[usize::from(!front)] += 1;
                 }
+                if cfg.interior && is_interior(v.hits, p, &hit_candidate) {
+                    e.3.push(gt);
+                }
             }
         }
     }
     let mut out = Vec::new();
+    // Emitters measured on interior pixels (triangle, radiance, interior pixels), and those
+    // seen at outline pixels only.
+    let (mut measured, mut outline) = (Vec::new(), Vec::new());
     for t in 0..mesh.num_triangles() {
         if !candidate[t] {
             continue;
         }
-        let Some((px, shares, sides)) = seen.get_mut(&(t as u32)) else {
+        let Some((px, shares, sides, inner)) = seen.get_mut(&(t as u32)) else {
             continue;
         };
         shares.sort_by(f32::total_cmp);
         let unexplained = shares[(shares.len() - 1) / 2];
-        if unexplained < cfg.min_unexplained {
+        if unexplained < cfg.min_unexplained || lower_median(px).iter().sum::<f32>() <= 0.0 {
             continue;
         }
-        let mut radiance = [0f32; 3];
-        for (c, r) in radiance.iter_mut().enumerate() {
-            let mut v: Vec<f32> = px.iter().map(|x| x[c]).collect();
-            v.sort_by(f32::total_cmp);
-            *r = v[(v.len() - 1) / 2];
-        }
-        if radiance.iter().sum::<f32>() / 3.0 <= 0.0 {
+        let radiance = if inner.is_empty() {
+            lower_median(px)
+        } else {
+            lower_median(inner)
+        };
+        if radiance.iter().sum::<f32>() <= 0.0 {
             continue;
+        }
+        if cfg.interior {
+            if inner.is_empty() {
+                outline.push(t);
+            } else {
+                measured.push((t, Vec3::from(radiance), inner.len() as f32));
+            }
         }
         let [a, b, c] = mesh.corners(t);
         out.push(Emitter {
@@ -181,23 +209,62 @@ pub fn extract(
             unseen: false,
         });
     }
+    if !outline.is_empty() && !measured.is_empty() {
+        for (t, radiance) in spread(mesh, &measured, &outline) {
+            if let Ok(i) = out.binary_search_by_key(&(t as u32), |e| e.triangle) {
+                out[i].radiance = radiance.to_array();
+            }
+        }
+    }
     if cfg.fill_unseen {
         let unseen: Vec<usize> = (0..mesh.num_triangles())
             .filter(|&t| candidate[t] && !seen.contains_key(&(t as u32)))
             .collect();
-        fill_unseen(mesh, &unseen, &mean_alpha, &mut out);
+        let sources: Vec<(usize, Vec3, f32)> = out
+            .iter()
+            .map(|e| (e.triangle as usize, Vec3::from(e.radiance), e.pixels as f32))
+            .collect();
+        for (t, radiance) in spread(mesh, &sources, &unseen) {
+            out.push(Emitter {
+                mean_alpha: mean_alpha[t],
+                unseen: true,
+                ..Emitter::on_triangle(mesh, t, radiance.to_array())
+            });
+        }
+        out.sort_by_key(|e| e.triangle);
     }
     out
 }
 
-/// Appends to `emitters` those of the `unseen` candidates reached through shared edges from an
-/// emitter, each with the pixel-weighted (filled ones: unit-weighted) mean radiance of its
-/// emitting edge neighbours; passes repeat until none is added. Edges are matched by vertex
-/// position, so faces with split vertices connect.
-fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut Vec<Emitter>) {
+/// Per channel, the lower median of `px` (not empty).
+fn lower_median(px: &[[f32; 3]]) -> [f32; 3] {
+    std::array::from_fn(|c| {
+        let mut v: Vec<f32> = px.iter().map(|x| x[c]).collect();
+        v.sort_by(f32::total_cmp);
+        v[(v.len() - 1) / 2]
+    })
+}
+
+/// Whether pixel `p` lies inside the image and its eight neighbours' pixel-centre rays all hit
+/// what `hit` accepts.
+fn is_interior(hits: &ViewHits, p: usize, hit: &dyn Fn(usize) -> bool) -> bool {
+    let (w, h) = (hits.width, hits.height);
+    let (x, y) = (p % w, p / w);
+    if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
+        return false;
+    }
+    (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| hit(yy * w + xx)))
+}
+
+/// The radiance that the `targets` reach through shared edges from the `sources` (triangle,
+/// radiance, weight): each target reached takes the weighted mean radiance of its emitting
+/// edge neighbours (a weight of at least 1; targets reached, weight 1), in passes until none is
+/// added. Edges are matched by vertex position, so faces with split vertices connect.
+fn spread(mesh: &Mesh, sources: &[(usize, Vec3, f32)], targets: &[usize]) -> Vec<(usize, Vec3)> {
     use std::collections::HashMap;
-    if unseen.is_empty() || emitters.is_empty() {
-        return;
+    let mut reached = Vec::new();
+    if targets.is_empty() || sources.is_empty() {
+        return reached;
     }
     let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
     let mut vid = |p: Vec3| {
@@ -210,18 +277,17 @@ fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut
     };
     // Edge → (radiance sum, weight) of the emitters on it.
     let mut lit: HashMap<(u32, u32), (Vec3, f32)> = HashMap::new();
-    let add = |lit: &mut HashMap<(u32, u32), (Vec3, f32)>, es: [(u32, u32); 3], e: &Emitter| {
-        let w = (e.pixels as f32).max(1.0);
+    let add = |lit: &mut HashMap<(u32, u32), (Vec3, f32)>, es: [(u32, u32); 3], r: Vec3, w: f32| {
         for k in es {
             let v = lit.entry(k).or_insert((Vec3::ZERO, 0.0));
-            v.0 += Vec3::from(e.radiance) * w;
-            v.1 += w;
+            v.0 += r * w.max(1.0);
+            v.1 += w.max(1.0);
         }
     };
-    for e in emitters.iter() {
-        add(&mut lit, edges(e.triangle as usize), e);
+    for &(t, r, w) in sources {
+        add(&mut lit, edges(t), r, w);
     }
-    let mut left: Vec<(usize, [(u32, u32); 3])> = unseen.iter().map(|&t| (t, edges(t))).collect();
+    let mut left: Vec<(usize, [(u32, u32); 3])> = targets.iter().map(|&t| (t, edges(t))).collect();
     loop {
         let mut found = Vec::new();
         left.retain(|&(t, es)| {
@@ -240,16 +306,11 @@ fn fill_unseen(mesh: &Mesh, unseen: &[usize], mean_alpha: &[f32], emitters: &mut
             break;
         }
         for (t, es, radiance) in found {
-            let e = Emitter {
-                mean_alpha: mean_alpha[t],
-                unseen: true,
-                ..Emitter::on_triangle(mesh, t, radiance.to_array())
-            };
-            add(&mut lit, es, &e);
-            emitters.push(e);
+            add(&mut lit, es, radiance, 1.0);
+            reached.push((t, radiance));
         }
     }
-    emitters.sort_by_key(|e| e.triangle);
+    reached
 }
 
 impl Emitter {
@@ -306,6 +367,18 @@ pub fn radiance_per_triangle(num_triangles: usize, emitters: &[Emitter]) -> Vec<
 mod tests {
     use super::*;
 
+    /// The reference's threshold, the default `min_unexplained`, 4 samples per triangle.
+    fn test_config(fill_unseen: bool, interior: bool) -> ExtractConfig {
+        ExtractConfig {
+            samples_per_triangle: 4,
+            threshold: 0.01,
+            min_unexplained: 0.5,
+            fill_unseen,
+            interior,
+            seed: 0,
+        }
+    }
+
     #[test]
     fn picks_masked_seen_triangles_with_lower_median() {
         let mesh = Mesh::parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 0 0\nv 6 0 0\nv 5 1 0\nv 9 0 0\nv 9 1 0\nv 9 0 1\nf 1 2 3\nf 4 5 6\nf 7 8 9\n").unwrap();
@@ -327,13 +400,7 @@ mod tests {
         let img = [
             1.0, 1.0, 1.0, 4.0, 4.0, 4.0, 2.0, 2.0, 2.0, 3.0, 3.0, 3.0, 9.0, 9.0, 9.0,
         ];
-        let cfg = ExtractConfig {
-            samples_per_triangle: 10,
-            threshold: 0.01,
-            min_unexplained: 0.5,
-            fill_unseen: false,
-            seed: 0,
-        };
+        let cfg = test_config(false, false);
         let view = |reflected| ObservedView {
             hits: &hits,
             image: &img,
@@ -398,13 +465,7 @@ mod tests {
             image: &img,
             reflected: &[],
         };
-        let mut cfg = ExtractConfig {
-            samples_per_triangle: 4,
-            threshold: 0.01,
-            min_unexplained: 0.5,
-            fill_unseen: false,
-            seed: 0,
-        };
+        let mut cfg = test_config(false, false);
         let dropped = extract(&mesh, &mut alpha, &[view], &cfg);
         assert_eq!(dropped.iter().map(|e| e.triangle).collect::<Vec<_>>(), [0]);
         cfg.fill_unseen = true;
@@ -415,5 +476,64 @@ mod tests {
             assert_eq!(f.radiance, [2.0, 4.0, 6.0]);
             assert_eq!((f.pixels, f.observed_sides()), (0, EmitterSides::Both));
         }
+    }
+
+    /// With `interior`, a triangle's radiance is the median of its interior pixels (all eight
+    /// neighbours on candidates), one seen at outline pixels only takes that of its measured
+    /// edge neighbour, and one with no measured neighbour keeps its own median; without it,
+    /// every pixel counts (the outline pulls the lamp's median down).
+    #[test]
+    fn interior_pixels_measure_a_lamp_past_its_outline() {
+        // 0 and 1: a quad (shared edge (0,0,0)-(1,1,0)); 2: apart.
+        let mesh = Mesh::parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 0 0\nv 6 0 0\nv 5 1 0\n\
+             f 1 2 3\nf 1 3 4\nf 5 6 7\n",
+        )
+        .unwrap();
+        let mut alpha = |p: &[[f32; 3]]| vec![1.0; p.len()];
+        #[rustfmt::skip]
+        let tri = vec![
+            -1, -1, -1, -1, 2,
+            -1, 0, 0, 0, -1,
+            -1, 0, 0, 0, -1,
+            -1, 0, 0, 1, -1,
+            -1, -1, -1, -1, -1,
+        ];
+        // Outline pixels of the lamp read 4 (triangle 0) and 3 (triangle 1), its one interior
+        // pixel (2, 2) reads 10, triangle 2's pixel 7.
+        let img: Vec<f32> = (0..25)
+            .flat_map(|p| {
+                let v = match (p, tri[p]) {
+                    (12, _) => 10.0,
+                    (_, 0) => 4.0,
+                    (_, 1) => 3.0,
+                    (_, 2) => 7.0,
+                    _ => 0.5,
+                };
+                [v; 3]
+            })
+            .collect();
+        let hits = ViewHits {
+            width: 5,
+            height: 5,
+            tri,
+            direction: vec![Vec3::NEG_Z; 25],
+            ..Default::default()
+        };
+        let view = ObservedView {
+            hits: &hits,
+            image: &img,
+            reflected: &[],
+        };
+        let mut cfg = test_config(true, false);
+        let mut radiance = |cfg: &ExtractConfig| -> Vec<f32> {
+            extract(&mesh, &mut alpha, &[view], cfg)
+                .iter()
+                .map(|e| e.radiance[0])
+                .collect()
+        };
+        assert_eq!(radiance(&cfg), [4.0, 3.0, 7.0]);
+        cfg.interior = true;
+        assert_eq!(radiance(&cfg), [10.0, 10.0, 7.0]);
     }
 }

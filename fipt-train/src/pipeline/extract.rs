@@ -50,6 +50,7 @@ pub fn extract_emitters(
             threshold: cfg.threshold,
             min_unexplained: cfg.min_unexplained,
             fill_unseen: cfg.fill_unseen,
+            interior: cfg.interior,
             seed,
         },
     );
