@@ -697,21 +697,12 @@ const STOP_VIEWS: usize = 8;
 /// The steps between the stopped runs' checkpoints.
 const STOP_EVERY: usize = 50;
 
-/// `configs/fast.json` made small for the stopped runs: a small grid and networks, fits of 400
-/// steps of 2048 pixels saved every `STOP_EVERY` steps, a coarser voxel grid for the bake, fewer
-/// samples in refinement, the albedo maps and the re-renders. Every stage and round of the fast
+/// `common::small_fast_config` for the stopped runs: fits of 400 steps saved every
+/// `STOP_EVERY` steps, fewer samples in refinement, the albedo maps and the re-renders. Every stage and round of the fast
 /// config still runs, the hop included.
 fn stops_config(dir: &Path) -> PathBuf {
-    let mut c = read_json(&root().join("configs/fast.json"));
-    let t = &mut c["train"];
-    t["batch"] = 2048.into();
-    t["min_steps"] = 400.into();
-    t["grid"]["levels"] = 8.into();
-    t["grid"]["log2_table"] = 14.into();
-    t["emission_depth"] = 3.into();
-    t["emission_width"] = 64.into();
+    let mut c = common::small_fast_config(400);
     c["checkpoint"]["every_steps"] = STOP_EVERY.into();
-    c["bake"]["voxel_res"] = 64.into();
     let paths = &mut c["refine"]["paths"];
     paths["samples"] = serde_json::json!({"diffuse": 8, "specular": [4, 4, 4, 4, 4, 4]});
     paths["light_samples"] = 8.into();

@@ -19,33 +19,20 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 /// The first train views of fipt-room that the runs fit.
 const VIEWS: usize = 6;
 
-/// `configs/fast.json` shrunk: a small grid and networks, 150 steps of 2048, no basin hop, no
-/// refinement, no re-renders.
+/// `common::small_fast_config` with fits of 150 steps, no basin hop, no refinement, no
+/// re-renders.
 fn config(dir: &Path, grid_place: &str) -> PathBuf {
-    let mut c: Value =
-        serde_json::from_str(&std::fs::read_to_string(root().join("configs/fast.json")).unwrap())
-            .unwrap();
+    let mut c = common::small_fast_config(150);
     let t = &mut c["train"];
-    t["batch"] = 2048.into();
-    t["min_steps"] = 150.into();
     t["epochs"] = 1.into();
-    t["grid"]["levels"] = 8.into();
-    t["grid"]["log2_table"] = 14.into();
-    t["emission_depth"] = 3.into();
-    t["emission_width"] = 64.into();
     t["grid_place"] = grid_place.into();
     // No basin hop: its keep-or-undo decision turns the backends' rounding differences into
     // whole-part jumps of σ (one run hops where the other does not), which is not what this
     // test compares.
     t["hop"] = Value::Null;
-    c["bake"]["voxel_res"] = 64.into();
     c["refine"]["rounds"] = 0.into();
     c["render"]["val"] = false.into();
     c["maps"]["albedo_samples"] = 16.into();

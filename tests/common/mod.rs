@@ -83,3 +83,21 @@ pub fn small_scene(dir: &Path, views: usize, val: bool) {
         }
     }
 }
+
+/// `configs/fast.json` with a small model for the small scenes (`small_scene`): fits of
+/// `min_steps` steps of 2048 pixels, 8 hash-grid levels of 2^14 entries, an emission network
+/// of 3 layers of 64, and a voxel grid of 64 for the bake.
+pub fn small_fast_config(min_steps: usize) -> serde_json::Value {
+    let fast = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../configs/fast.json");
+    let mut c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fast).unwrap()).unwrap();
+    let t = &mut c["train"];
+    t["batch"] = 2048.into();
+    t["min_steps"] = min_steps.into();
+    t["grid"]["levels"] = 8.into();
+    t["grid"]["log2_table"] = 14.into();
+    t["emission_depth"] = 3.into();
+    t["emission_width"] = 64.into();
+    c["bake"]["voxel_res"] = 64.into();
+    c
+}

@@ -142,7 +142,7 @@ pub fn extract(
             t >= 0 && candidate[t as usize]
         };
         for (p, &t) in v.hits.tri.iter().enumerate() {
-            if t >= 0 && candidate[t as usize] {
+            if hit_candidate(p) {
                 let gt = [v.image[3 * p], v.image[3 * p + 1], v.image[3 * p + 2]];
                 let share = if v.reflected.is_empty() {
                     1.0
@@ -176,11 +176,12 @@ pub fn extract(
         };
         shares.sort_by(f32::total_cmp);
         let unexplained = shares[(shares.len() - 1) / 2];
-        if unexplained < cfg.min_unexplained || lower_median(px).iter().sum::<f32>() <= 0.0 {
+        let all = lower_median(px);
+        if unexplained < cfg.min_unexplained || all.iter().sum::<f32>() <= 0.0 {
             continue;
         }
         let radiance = if inner.is_empty() {
-            lower_median(px)
+            all
         } else {
             lower_median(inner)
         };
