@@ -226,6 +226,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "train.grid.max_resolution", closed(1.0, 1048576.0),
         "cells (or \"auto\", \"none\")",
     ),
+    f(C, "train.grid.cells_per_footprint", above(0.0, 1024.0), "cells per pixel footprint"),
     f(
         C,
         "train.mlp_hidden",

@@ -19,10 +19,13 @@
 //! A third (`interior`): a photo pixel is the mean of the radiance over its footprint, so a
 //! pixel on a lamp's outline mixes the lamp with what lies behind it, and a small lamp seen a
 //! few pixels wide is mostly outline. The median is then taken over a triangle's interior
-//! pixels only, those whose eight neighbours' pixel-centre rays also hit candidates; a triangle
-//! seen at outline pixels only takes the pixel-weighted mean radiance of its edge neighbours
-//! measured on interior pixels (as `fill_unseen` spreads it), and keeps its own median where
-//! none is reached.
+//! pixels only, those whose eight neighbours' pixel-centre rays also hit candidates of the same
+//! connected emitter (candidates joined through shared edges); a triangle seen at outline
+//! pixels only takes the pixel-weighted mean radiance of its edge neighbours measured on
+//! interior pixels (as `fill_unseen` spreads it). Where none is reached it keeps its own
+//! median, unless every pixel of it borders another emitter's pixels: then what it shows is
+//! that emitter's light (its outline, or its reflection in a glossy surface under a lamp), and
+//! it is dropped.
 //!
 //! Owns: per-triangle sampling, the decision and the radiance statistics. Must not touch: the
 //! mask itself (it is queried through a closure, a batch at a time).
@@ -132,17 +135,29 @@ pub fn extract(
         }
     }
     let candidate: Vec<bool> = mean_alpha.iter().map(|&a| a > threshold).collect();
-    // Per candidate: observed radiance and unexplained share of each pixel that saw it, and
-    // the observed radiance of its interior pixels.
-    type Seen = (Vec<[f32; 3]>, Vec<f32>, [u32; 2], Vec<[f32; 3]>);
+    // With `interior`, the connected emitter of each candidate.
+    let emitter_of = if cfg.interior {
+        components(mesh, &candidate)
+    } else {
+        Vec::new()
+    };
+    // Per candidate: observed radiance and unexplained share of each pixel that saw it, the
+    // observed radiance of its interior pixels, and how many of its pixels border another
+    // emitter's.
+    type Seen = (Vec<[f32; 3]>, Vec<f32>, [u32; 2], Vec<[f32; 3]>, usize);
     let mut seen: std::collections::HashMap<u32, Seen> = Default::default();
     for v in views {
-        let hit_candidate = |p: usize| {
+        // The connected emitter that pixel `p`'s centre ray hits (`u32::MAX`: none).
+        let emitter_at = |p: usize| {
             let t = v.hits.tri[p];
-            t >= 0 && candidate[t as usize]
+            if t >= 0 {
+                emitter_of[t as usize]
+            } else {
+                u32::MAX
+            }
         };
         for (p, &t) in v.hits.tri.iter().enumerate() {
-            if hit_candidate(p) {
+            if t >= 0 && candidate[t as usize] {
                 let gt = [v.image[3 * p], v.image[3 * p + 1], v.image[3 * p + 2]];
                 let share = if v.reflected.is_empty() {
                     1.0
@@ -157,21 +172,28 @@ pub fn extract(
                     let front = mesh.normal(t as usize).dot(*d) < 0.0;
                     e.2[usize::from(!front)] += 1;
                 }
-                if cfg.interior && is_interior(v.hits, p, &hit_candidate) {
-                    e.3.push(gt);
+                if cfg.interior {
+                    let own = emitter_of[t as usize];
+                    if is_interior(v.hits, p, &|q| emitter_at(q) == own) {
+                        e.3.push(gt);
+                    }
+                    let other = |q: usize| emitter_at(q) != own && emitter_at(q) != u32::MAX;
+                    if neighbours(v.hits, p).any(other) {
+                        e.4 += 1;
+                    }
                 }
             }
         }
     }
     let mut out = Vec::new();
-    // Emitters measured on interior pixels (triangle, radiance, interior pixels), and those
-    // seen at outline pixels only.
-    let (mut measured, mut outline) = (Vec::new(), Vec::new());
+    // Emitters measured on interior pixels (triangle, radiance, interior pixels), those seen at
+    // outline pixels only, and those among them whose every pixel borders another emitter.
+    let (mut measured, mut outline, mut mixed) = (Vec::new(), Vec::new(), Vec::new());
     for t in 0..mesh.num_triangles() {
         if !candidate[t] {
             continue;
         }
-        let Some((px, shares, sides, inner)) = seen.get_mut(&(t as u32)) else {
+        let Some((px, shares, sides, inner, bordering)) = seen.get_mut(&(t as u32)) else {
             continue;
         };
         shares.sort_by(f32::total_cmp);
@@ -191,6 +213,9 @@ pub fn extract(
         if cfg.interior {
             if inner.is_empty() {
                 outline.push(t);
+                if *bordering == px.len() {
+                    mixed.push(t);
+                }
             } else {
                 measured.push((t, Vec3::from(radiance), inner.len() as f32));
             }
@@ -210,13 +235,18 @@ pub fn extract(
             unseen: false,
         });
     }
-    if !outline.is_empty() && !measured.is_empty() {
-        for (t, radiance) in spread(mesh, &measured, &outline) {
-            if let Ok(i) = out.binary_search_by_key(&(t as u32), |e| e.triangle) {
-                out[i].radiance = radiance.to_array();
-            }
+    let reached = spread(mesh, &measured, &outline);
+    for &(t, radiance) in &reached {
+        if let Ok(i) = out.binary_search_by_key(&(t as u32), |e| e.triangle) {
+            out[i].radiance = radiance.to_array();
         }
     }
+    // A triangle seen only at pixels beside another emitter, and reached by no measured
+    // neighbour, shows that emitter's light (its outline, or its reflection), not its own.
+    out.retain(|e| {
+        let t = e.triangle as usize;
+        !mixed.contains(&t) || reached.iter().any(|r| r.0 == t)
+    });
     if cfg.fill_unseen {
         let unseen: Vec<usize> = (0..mesh.num_triangles())
             .filter(|&t| candidate[t] && !seen.contains_key(&(t as u32)))
@@ -246,15 +276,69 @@ fn lower_median(px: &[[f32; 3]]) -> [f32; 3] {
     })
 }
 
+/// The pixels around pixel `p` that lie inside the image (eight away from its border).
+fn neighbours(hits: &ViewHits, p: usize) -> impl Iterator<Item = usize> {
+    let (w, h) = (hits.width, hits.height);
+    let (x, y) = (p % w, p / w);
+    (y.saturating_sub(1)..(y + 2).min(h))
+        .flat_map(move |yy| (x.saturating_sub(1)..(x + 2).min(w)).map(move |xx| yy * w + xx))
+        .filter(move |&q| q != p)
+}
+
 /// Whether pixel `p` lies inside the image and its eight neighbours' pixel-centre rays all hit
 /// what `hit` accepts.
 fn is_interior(hits: &ViewHits, p: usize, hit: &dyn Fn(usize) -> bool) -> bool {
-    let (w, h) = (hits.width, hits.height);
-    let (x, y) = (p % w, p / w);
-    if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
-        return false;
+    let (x, y) = (p % hits.width, p / hits.width);
+    let inside = x > 0 && y > 0 && x + 1 < hits.width && y + 1 < hits.height;
+    inside && neighbours(hits, p).all(hit)
+}
+
+/// Edge keys of triangles with vertices matched by position, so faces with split vertices share
+/// edges.
+#[derive(Default)]
+struct EdgeKeys(std::collections::HashMap<[u32; 3], u32>);
+
+impl EdgeKeys {
+    /// Triangle `t`'s three edges, each as an ordered pair of vertex ids.
+    fn edges(&mut self, mesh: &Mesh, t: usize) -> [(u32, u32); 3] {
+        let [a, b, c] = mesh.corners(t).map(|p| {
+            let n = self.0.len() as u32;
+            *self.0.entry(p.to_array().map(f32::to_bits)).or_insert(n)
+        });
+        [(a, b), (b, c), (c, a)].map(|(x, y)| (x.min(y), x.max(y)))
     }
-    (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| hit(yy * w + xx)))
+}
+
+/// Per triangle, the connected emitter it belongs to: candidates joined through shared edges
+/// get one id (the smallest triangle index among them); non-candidates get `u32::MAX`.
+fn components(mesh: &Mesh, candidate: &[bool]) -> Vec<u32> {
+    fn root(parent: &mut [u32], mut t: u32) -> u32 {
+        while parent[t as usize] != t {
+            let up = parent[parent[t as usize] as usize];
+            parent[t as usize] = up;
+            t = up;
+        }
+        t
+    }
+    let mut parent: Vec<u32> = (0..candidate.len() as u32).collect();
+    let mut keys = EdgeKeys::default();
+    let mut owner: std::collections::HashMap<(u32, u32), u32> = Default::default();
+    for t in (0..candidate.len()).filter(|&t| candidate[t]) {
+        for k in keys.edges(mesh, t) {
+            let other = *owner.entry(k).or_insert(t as u32);
+            let (a, b) = (root(&mut parent, t as u32), root(&mut parent, other));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+    }
+    (0..candidate.len() as u32)
+        .map(|t| {
+            if candidate[t as usize] {
+                root(&mut parent, t)
+            } else {
+                u32::MAX
+            }
+        })
+        .collect()
 }
 
 /// The radiance that the `targets` reach through shared edges from the `sources` (triangle,
@@ -267,15 +351,8 @@ fn spread(mesh: &Mesh, sources: &[(usize, Vec3, f32)], targets: &[usize]) -> Vec
     if targets.is_empty() || sources.is_empty() {
         return reached;
     }
-    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
-    let mut vid = |p: Vec3| {
-        let n = ids.len() as u32;
-        *ids.entry(p.to_array().map(f32::to_bits)).or_insert(n)
-    };
-    let mut edges = |t: usize| -> [(u32, u32); 3] {
-        let [a, b, c] = mesh.corners(t).map(&mut vid);
-        [(a, b), (b, c), (c, a)].map(|(x, y)| (x.min(y), x.max(y)))
-    };
+    let mut keys = EdgeKeys::default();
+    let mut edges = |t: usize| keys.edges(mesh, t);
     // Edge → (radiance sum, weight) of the emitters on it.
     let mut lit: HashMap<(u32, u32), (Vec3, f32)> = HashMap::new();
     let add = |lit: &mut HashMap<(u32, u32), (Vec3, f32)>, es: [(u32, u32); 3], r: Vec3, w: f32| {
@@ -480,45 +557,49 @@ mod tests {
     }
 
     /// With `interior`, a triangle's radiance is the median of its interior pixels (all eight
-    /// neighbours on candidates), one seen at outline pixels only takes that of its measured
-    /// edge neighbour, and one with no measured neighbour keeps its own median; without it,
-    /// every pixel counts (the outline pulls the lamp's median down).
+    /// neighbours on the same connected emitter), one seen at outline pixels only takes that of
+    /// its measured edge neighbour, one with no measured neighbour keeps its own median, and one
+    /// seen only beside another emitter's pixels is dropped; without it, every pixel counts (the
+    /// outline pulls the lamp's median down).
     #[test]
     fn interior_pixels_measure_a_lamp_past_its_outline() {
-        // 0 and 1: a quad (shared edge (0,0,0)-(1,1,0)); 2: apart.
+        // 0 and 1: a quad (shared edge (0,0,0)-(1,1,0)); 2 and 3: apart.
         let mesh = Mesh::parse_obj(
             "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 0 0\nv 6 0 0\nv 5 1 0\n\
-             f 1 2 3\nf 1 3 4\nf 5 6 7\n",
+             v 9 0 0\nv 10 0 0\nv 9 1 0\n\
+             f 1 2 3\nf 1 3 4\nf 5 6 7\nf 8 9 10\n",
         )
         .unwrap();
         let mut alpha = |p: &[[f32; 3]]| vec![1.0; p.len()];
         #[rustfmt::skip]
         let tri = vec![
-            -1, -1, -1, -1, 2,
-            -1, 0, 0, 0, -1,
-            -1, 0, 0, 0, -1,
-            -1, 0, 0, 1, -1,
-            -1, -1, -1, -1, -1,
+            -1, -1, -1, -1, 3, -1, 2,
+            -1, 0, 0, 0, -1, -1, -1,
+            -1, 0, 0, 0, -1, -1, -1,
+            -1, 0, 0, 1, -1, -1, -1,
+            -1, -1, -1, -1, -1, -1, -1,
         ];
         // Outline pixels of the lamp read 4 (triangle 0) and 3 (triangle 1), its one interior
-        // pixel (2, 2) reads 10, triangle 2's pixel 7.
-        let img: Vec<f32> = (0..25)
+        // pixel (2, 2) reads 10; triangle 2's pixel, away from the lamp, 7; triangle 3's,
+        // diagonal to the lamp's corner, 6.
+        let img: Vec<f32> = (0..35)
             .flat_map(|p| {
                 let v = match (p, tri[p]) {
-                    (12, _) => 10.0,
+                    (16, _) => 10.0,
                     (_, 0) => 4.0,
                     (_, 1) => 3.0,
                     (_, 2) => 7.0,
+                    (_, 3) => 6.0,
                     _ => 0.5,
                 };
                 [v; 3]
             })
             .collect();
         let hits = ViewHits {
-            width: 5,
+            width: 7,
             height: 5,
             tri,
-            direction: vec![Vec3::NEG_Z; 25],
+            direction: vec![Vec3::NEG_Z; 35],
             ..Default::default()
         };
         let view = ObservedView {
@@ -527,14 +608,14 @@ mod tests {
             reflected: &[],
         };
         let mut cfg = test_config(true, false);
-        let mut radiance = |cfg: &ExtractConfig| -> Vec<f32> {
+        let mut radiance = |cfg: &ExtractConfig| -> Vec<(u32, f32)> {
             extract(&mesh, &mut alpha, &[view], cfg)
                 .iter()
-                .map(|e| e.radiance[0])
+                .map(|e| (e.triangle, e.radiance[0]))
                 .collect()
         };
-        assert_eq!(radiance(&cfg), [4.0, 3.0, 7.0]);
+        assert_eq!(radiance(&cfg), [(0, 4.0), (1, 3.0), (2, 7.0), (3, 6.0)]);
         cfg.interior = true;
-        assert_eq!(radiance(&cfg), [10.0, 10.0, 7.0]);
+        assert_eq!(radiance(&cfg), [(0, 10.0), (1, 10.0), (2, 7.0)]);
     }
 }

@@ -39,6 +39,9 @@ pub struct HashGridConfig {
     /// there can absorb each pixel's residual. What it measures: `docs/departures/
     /// grid-max-resolution.md`.
     pub max_resolution: MaxResolution,
+    /// Cells per median pixel footprint at which `"auto"` stops: 1 puts the finest kept level at
+    /// one cell per footprint, 0.5 at one cell per two footprints. Not used otherwise.
+    pub cells_per_footprint: f64,
     /// Entries start uniform in [-init, init] (tiny-cuda-nn: 1e-4); not a config-file key.
     #[serde(skip, default = "default_init")]
     pub init: f32,
@@ -59,6 +62,7 @@ impl Default for HashGridConfig {
             base_resolution: 32.0,
             per_level_scale: 1.3,
             max_resolution: MaxResolution::Keyword(ResolutionKeyword::None),
+            cells_per_footprint: 1.0,
             init: default_init(),
         }
     }
@@ -119,7 +123,7 @@ impl HashGridConfig {
     pub fn levels_for(&self, footprint: f64) -> usize {
         let max = match self.max_resolution {
             MaxResolution::Keyword(ResolutionKeyword::None) => return self.levels,
-            MaxResolution::Keyword(ResolutionKeyword::Auto) => 1.0 / footprint,
+            MaxResolution::Keyword(ResolutionKeyword::Auto) => self.cells_per_footprint / footprint,
             MaxResolution::Fixed(r) => r,
         };
         let kept = ((max / self.base_resolution).ln() / self.per_level_scale.ln()).floor() + 1.0;
@@ -193,6 +197,9 @@ impl HashGridConfig {
             && !(r.is_finite() && r >= 1.0)
         {
             return fail("max_resolution", "must be finite and >= 1");
+        }
+        if !(self.cells_per_footprint.is_finite() && self.cells_per_footprint > 0.0) {
+            return fail("cells_per_footprint", "must be finite and > 0");
         }
         let values = ((self.levels * self.features) as u64) << self.log2_table;
         if values > 1 << 30 {
@@ -975,6 +982,35 @@ mod tests {
         let mut r = Rng::new(9, 9);
         g.table.iter_mut().for_each(|v| *v = r.next_f32() - 0.5);
         g
+    }
+
+    /// `"auto"` keeps the levels no finer than `cells_per_footprint` cells per footprint: the
+    /// finest kept one is at most that fine, and the next would be finer.
+    #[test]
+    fn auto_levels_stop_at_the_footprint() {
+        let mut c = HashGridConfig::new();
+        c.max_resolution = MaxResolution::Keyword(ResolutionKeyword::Auto);
+        for (cells, footprint) in [(1.0, 0.0064), (0.5, 0.0064), (1.0, 0.0089), (2.0, 0.02)] {
+            c.cells_per_footprint = cells;
+            let kept = c.levels_for(footprint);
+            let res = |l: usize| c.base_resolution * c.per_level_scale.powi(l as i32);
+            let max = cells / footprint;
+            assert!(
+                res(kept - 1) <= max && res(kept) > max,
+                "{cells} {footprint}: {kept}"
+            );
+        }
+        c.cells_per_footprint = 0.5;
+        assert!(
+            c.levels_for(0.0064)
+                < HashGridConfig {
+                    cells_per_footprint: 1.0,
+                    ..c.clone()
+                }
+                .levels_for(0.0064)
+        );
+        c.max_resolution = MaxResolution::Keyword(ResolutionKeyword::None);
+        assert_eq!(c.levels_for(0.0064), c.levels);
     }
 
     fn points(n: usize, seed: u64) -> Vec<[f32; 3]> {
