@@ -698,8 +698,8 @@ const STOP_VIEWS: usize = 8;
 const STOP_EVERY: usize = 50;
 
 /// `common::small_fast_config` for the stopped runs: fits of 400 steps saved every
-/// `STOP_EVERY` steps, fewer samples in refinement, the albedo maps and the re-renders. Every stage and round of the fast
-/// config still runs, the hop included.
+/// `STOP_EVERY` steps, fewer samples in refinement, the albedo maps and the re-renders. Every
+/// stage and round of the fast config still runs, the hop included.
 fn stops_config(dir: &Path) -> PathBuf {
     let mut c = common::small_fast_config(400);
     c["checkpoint"]["every_steps"] = STOP_EVERY.into();

@@ -579,7 +579,8 @@ pub struct EmitterSection {
     /// (false: the reference). See `fipt_bake::emitters`.
     pub fill_unseen: bool,
     /// A triangle's radiance is the median of its interior photo pixels, not of the outline
-    /// pixels that mix it with what lies behind (false: every pixel, the reference). See
+    /// pixels that mix it with what lies behind, and a triangle seen only beside another
+    /// emitter's pixels is dropped (false: every pixel, the reference). See
     /// `fipt_bake::emitters` and `docs/departures/emitter-interior.md`.
     pub interior: bool,
 }

@@ -83,8 +83,9 @@ pub struct ExtractConfig {
     /// Give unseen candidates next to emitters their neighbours' radiance (false: dropped, the
     /// reference).
     pub fill_unseen: bool,
-    /// Measure a triangle's radiance on its interior pixels (false: on every pixel that saw
-    /// it, the reference).
+    /// Measure a triangle's radiance on its interior pixels, and drop one seen only beside
+    /// another emitter that no measured neighbour reaches (false: every pixel that saw it
+    /// counts, the reference).
     pub interior: bool,
     pub seed: u64,
 }
@@ -177,7 +178,7 @@ pub fn extract(
                     if is_interior(v.hits, p, &|q| emitter_at(q) == own) {
                         e.3.push(gt);
                     }
-                    let other = |q: usize| emitter_at(q) != own && emitter_at(q) != u32::MAX;
+                    let other = |q: usize| ![own, u32::MAX].contains(&emitter_at(q));
                     if neighbours(v.hits, p).any(other) {
                         e.4 += 1;
                     }
