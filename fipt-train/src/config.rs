@@ -291,10 +291,11 @@ impl Default for TrainSection {
             lambda_logit: 1e-3,
             lambda_sem: 1e-3,
             sem_partners: 1024,
-            // Levels finer than the pixel footprint dropped (the reference keeps all 32);
-            // `docs/departures/grid-max-resolution.md`.
+            // Levels finer than 0.6 cells per pixel footprint dropped (the reference keeps all
+            // 32); `docs/departures/grid-max-resolution.md`.
             grid: HashGridConfig {
                 max_resolution: MaxResolution::Keyword(ResolutionKeyword::Auto),
+                cells_per_footprint: 0.6,
                 ..HashGridConfig::default()
             },
             mlp_hidden: 64,
@@ -542,6 +543,9 @@ pub struct HopConfig {
     /// held at that σ and m 0 (the patch hypothesis, a dielectric's) instead of at its fitted
     /// σ and m (its data is flat there, and the prior put it where the fit left it).
     pub settle: bool,
+    /// A patch candidate hops as the dielectric its hypothesis was solved as: m pulled to 0
+    /// with σ to its target (false: σ alone, m left where the fit had it).
+    pub patch_dielectric: bool,
 }
 
 impl Default for HopConfig {
@@ -561,6 +565,7 @@ impl Default for HopConfig {
             anchor: 1e-2,
             patch_fallback: true,
             settle: true,
+            patch_dielectric: true,
         }
     }
 }
@@ -592,7 +597,7 @@ impl Default for EmitterSection {
             threshold: 0.01,
             min_unexplained: 0.5,
             fill_unseen: true,
-            interior: false,
+            interior: true,
         }
     }
 }

@@ -472,11 +472,13 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
         let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
         options.push((Hypothesis::Carried, sigma, m, obj, c.before));
     }
-    // Dielectrics only: a metal's σ is the sweep's and the metal's to find.
+    // Dielectrics only: a metal's σ is the sweep's and the metal's to find. Solved as a
+    // dielectric, it names m 0 with `patch_dielectric`.
     if let Some((sigma, obj, base)) = c.patch
         && c.metallic < 0.5
     {
-        options.push((Hypothesis::Patch, sigma, None, obj, base));
+        let m = cfg.patch_dielectric.then_some(0.0);
+        options.push((Hypothesis::Patch, sigma, m, obj, base));
     }
     let gain = |obj: f64, base: f64| 1.0 - obj / base;
     options.retain(|&(source, sigma, m, obj, base)| {
@@ -1291,8 +1293,8 @@ mod tests {
         };
         let c = with((0.6, 0.97, 1.0));
         assert_eq!(
-            (c.len(), c[0].source, c[0].target),
-            (1, Hypothesis::Patch, 0.6)
+            (c.len(), c[0].source, c[0].target, c[0].target_metallic),
+            (1, Hypothesis::Patch, 0.6, Some(0.0))
         );
         // Measured against the patch objective at the fitted σ, not the fit's own.
         assert_eq!((c[0].objective, c[0].objective_target), (1.0, 0.97));
@@ -1313,6 +1315,20 @@ mod tests {
         // A sweep candidate needs its 5 %, where a patch candidate's 2 % would do.
         assert!(!kept(cand(s, 1.0, 0.97)));
         assert!(kept(cand(s, 1.0, 0.9)));
+        // With `patch_dielectric` (the default) it hops as the dielectric it was solved as, m
+        // pulled to 0; without it, σ alone.
+        let sigma_alone = HopConfig {
+            patch_dielectric: false,
+            ..cfg.clone()
+        };
+        let d = candidates(
+            &sigma_alone,
+            &[SegmentObjective {
+                patch: Some((0.6, 0.97, 1.0)),
+                ..rows[0].clone()
+            }],
+        );
+        assert_eq!((d.len(), d[0].target, d[0].target_metallic), (1, 0.6, None));
     }
 
     /// With `anchor`, the segments that do not hop stay near their σ and m while one segment is
