@@ -546,6 +546,10 @@ pub struct HopConfig {
     /// A patch candidate hops as the dielectric its hypothesis was solved as: m pulled to 0
     /// with σ to its target (false: σ alone, m left where the fit had it).
     pub patch_dielectric: bool,
+    /// Weight of the pull that holds a candidate hopping as a metal (its target names m ≥ 0.5,
+    /// or it names no m and the fit has it at m ≥ 0.5) at its target through the release phase,
+    /// as a patch candidate is held (0: released, like every other candidate).
+    pub hold_metals: f32,
 }
 
 impl Default for HopConfig {
@@ -566,6 +570,7 @@ impl Default for HopConfig {
             patch_fallback: true,
             settle: true,
             patch_dielectric: true,
+            hold_metals: 0.1,
         }
     }
 }

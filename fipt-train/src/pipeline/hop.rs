@@ -12,7 +12,8 @@
 //! against ~1e-3 elsewhere) would decide it alone. With `patch_fallback`, a segment whose first
 //! hop (sweep, metal or carried) is undone tries its patch hypothesis in the second. With
 //! `settle`, the anchor holds a dielectric of a refined round at its patch hypothesis (its
-//! sweep's nearby minimum, and m = 0) rather than where the prior left it.
+//! sweep's nearby minimum, and m = 0) rather than where the prior left it. With `hold_metals`,
+//! a candidate that hops as a metal stays pulled to its target through the release phase.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
@@ -685,7 +686,8 @@ pub fn hop(
 /// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
 /// names one) pulled to their targets, then as many steps again released, except with `held`
 /// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
-/// alone would take them back). Where `anchor` > 0, every other segment of `held_at` (segment,
+/// alone would take them back) and, with `hold_metals`, the candidates that hop as metals (a
+/// small metal shares its grid cells with what surrounds it, which takes it back). Where `anchor` > 0, every other segment of `held_at` (segment,
 /// mean σ, mean m) is pulled to its σ and m through both phases. Returns the hopped trainer and
 /// the steps run.
 fn hop_phases(
@@ -712,17 +714,19 @@ fn hop_phases(
     let lambda_d = tr.cfg.lambda_d;
     tr.cfg.lr = plan.schedule.lr_at(total.saturating_sub(1), total);
     tr.cfg.lambda_d = plan.lambda_d;
-    let pull = SigmaPull {
-        weight: plan.cfg.pull,
-        target: chosen
-            .iter()
-            .map(|c| (c.segment, c.target as f32))
-            .collect(),
-        metallic: chosen
+    let pull_of = |cands: &[&HopCandidate], weight: f32| SigmaPull {
+        weight,
+        target: cands.iter().map(|c| (c.segment, c.target as f32)).collect(),
+        metallic: cands
             .iter()
             .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
             .collect(),
     };
+    let pull = pull_of(&chosen.iter().collect::<Vec<_>>(), plan.cfg.pull);
+    // What stays pulled in the release phase: every candidate where `held`, else the metals
+    // at `hold_metals` (None: nothing).
+    let metals: Vec<&HopCandidate> = chosen.iter().filter(|c| holds_metal(plan.cfg, c)).collect();
+    let release = (!held && !metals.is_empty()).then(|| pull_of(&metals, plan.cfg.hold_metals));
     // The segments not hopping, held where they were (`anchor`).
     let anchor = (plan.cfg.anchor > 0.0).then(|| {
         let others = held_at
@@ -744,7 +748,7 @@ fn hop_phases(
             return Err(e);
         }
         if s == phase && !held {
-            tr.pull = None;
+            tr.pull = release.clone();
         }
         idx.clear();
         for _ in 0..batch - balanced {
@@ -764,6 +768,12 @@ fn hop_phases(
     tr.cfg.lambda_d = lambda_d;
     tr.sync_host_table();
     Ok((tr, 2 * phase))
+}
+
+/// Whether `c` hops as a metal that `train.hop.hold_metals` keeps pulled to its target through
+/// the release phase: its target names m ≥ 0.5, or names no m and the fit has it at m ≥ 0.5.
+fn holds_metal(cfg: &HopConfig, c: &HopCandidate) -> bool {
+    cfg.hold_metals > 0.0 && c.target_metallic.unwrap_or(c.metallic) >= 0.5
 }
 
 /// Whether the candidates' size-weighted objective fell by at least `gain` of itself (the
@@ -1331,6 +1341,40 @@ mod tests {
         assert_eq!((d.len(), d[0].target, d[0].target_metallic), (1, 0.6, None));
     }
 
+    /// The data term (λ_d 0) of every sampled segment at `tr`'s model.
+    fn data_at(tr: &Trainer, st: &PixelStore, samples: &[SegmentSample]) -> Vec<SegmentEval> {
+        let prior = DiffusePrior {
+            lambda_d: 0.0,
+            sigma: tr.cfg.prior_sigma,
+        };
+        evaluate(&tr.model, st, samples, prior, Hypotheses::default())
+    }
+
+    /// A candidate of `source` for the first sampled segment, as `before` has it, hopping to
+    /// σ `target` (and m `target_metallic`).
+    fn first_candidate(
+        samples: &[SegmentSample],
+        before: &[SegmentEval],
+        target: f64,
+        source: Hypothesis,
+        target_metallic: Option<f64>,
+    ) -> HopCandidate {
+        HopCandidate {
+            segment: samples[0].id,
+            pixels: samples[0].size,
+            sigma: before[0].sigma,
+            target,
+            sigma_after: before[0].sigma,
+            source,
+            metallic: before[0].metallic,
+            target_metallic,
+            metallic_after: before[0].metallic,
+            objective: 1.0,
+            objective_target: 0.5,
+            objective_after: 1.0,
+        }
+    }
+
     /// With `anchor`, the segments that do not hop stay near their σ and m while one segment is
     /// pulled far away; without it, the shared networks carry them along.
     #[test]
@@ -1342,11 +1386,7 @@ mod tests {
         }
         let (tr, schedule) = toy_fitted(&st);
         let samples = sample(&st, 80);
-        let prior = DiffusePrior {
-            lambda_d: 0.0,
-            sigma: tr.cfg.prior_sigma,
-        };
-        let at = |tr: &Trainer| evaluate(&tr.model, &st, &samples, prior, Hypotheses::default());
+        let at = |tr: &Trainer| data_at(tr, &st, &samples);
         let before = at(&tr);
         let held_at: Vec<(i32, f64, f64)> = samples
             .iter()
@@ -1354,20 +1394,13 @@ mod tests {
             .map(|(s, e)| (s.id, e.sigma, e.metallic))
             .collect();
         let target = if before[0].sigma > 0.5 { 0.05 } else { 0.95 };
-        let chosen = [HopCandidate {
-            segment: samples[0].id,
-            pixels: samples[0].size,
-            sigma: before[0].sigma,
+        let chosen = [first_candidate(
+            &samples,
+            &before,
             target,
-            sigma_after: before[0].sigma,
-            source: Hypothesis::Sweep,
-            metallic: before[0].metallic,
-            target_metallic: None,
-            metallic_after: before[0].metallic,
-            objective: 1.0,
-            objective_target: 0.5,
-            objective_after: 1.0,
-        }];
+            Hypothesis::Sweep,
+            None,
+        )];
         let moved = |anchor: f32| {
             let hc = HopConfig {
                 steps: 2.0,
@@ -1410,6 +1443,63 @@ mod tests {
             held_apart > free_apart + 0.03,
             "the hopping segment {held_apart} apart from the others held, {free_apart} free"
         );
+    }
+
+    /// With `hold_metals`, a candidate hopping as a metal stays pulled through the release
+    /// phase: on photos of a dielectric, a metal hop (m 1) ends nearer its target held than
+    /// released, where the data takes it back. A dielectric candidate is released either way.
+    #[test]
+    fn hold_metals_keeps_a_metal_hop_at_its_target() {
+        let st = rendered_store(400, 0.3);
+        let (tr, mut schedule) = toy_fitted(&st);
+        // The hop runs at the schedule's last rate: keep it at the first so the steps move σ.
+        schedule.lr_end = 1.0;
+        let samples = sample(&st, 400);
+        let at = |tr: &Trainer| data_at(tr, &st, &samples);
+        let before = at(&tr);
+        let target = 0.7;
+        let metal = first_candidate(&samples, &before, target, Hypothesis::Metal, Some(1.0));
+        let dielectric = HopCandidate {
+            source: Hypothesis::Sweep,
+            target_metallic: None,
+            metallic: 0.0,
+            ..metal.clone()
+        };
+        let base = HopConfig {
+            steps: 1.0,
+            pull: 1.0,
+            anchor: 0.0,
+            hold_metals: 0.0,
+            ..HopConfig::default()
+        };
+        let hold = HopConfig {
+            hold_metals: 1.0,
+            ..base.clone()
+        };
+        assert!(holds_metal(&hold, &metal) && !holds_metal(&base, &metal));
+        assert!(!holds_metal(&hold, &dielectric));
+        // A candidate that names no m holds where the fit already has a metal.
+        let fitted_metal = HopCandidate {
+            metallic: 0.8,
+            ..dielectric.clone()
+        };
+        assert!(holds_metal(&hold, &fitted_metal));
+        let hopped = |cfg: &HopConfig, c: &HopCandidate| {
+            let plan = toy_plan(cfg, &schedule, 5e-4, 0.01);
+            let (out, _) =
+                hop_phases(tr.clone(), &st, &plan, std::slice::from_ref(c), &[], false).unwrap();
+            let a = at(&out);
+            (a[0].sigma, a[0].metallic)
+        };
+        let (released, m_released) = hopped(&base, &metal);
+        let (held, m_held) = hopped(&hold, &metal);
+        // The data (a dielectric) takes a released metal back; held, m stays at its target.
+        assert!(
+            (1.0 - m_held) + 0.2 < 1.0 - m_released,
+            "m {m_held} held, {m_released} released (σ {held} and {released}, for {target})"
+        );
+        // A dielectric's hop is the same with the key as without.
+        assert_eq!(hopped(&base, &dielectric), hopped(&hold, &dielectric));
     }
 
     /// `settle` holds a dielectric of a refined round at its patch minimum (and m 0) where that
@@ -1469,15 +1559,12 @@ mod tests {
         assert!(patch_fallbacks(&cfg, &rows).is_empty());
     }
 
-    /// On photos rendered at σ 0.3 with one colour per cube, the patch sweep proposes σ near
-    /// 0.3 for a fit that is not there, and the hop takes the segment most of the way there.
-    #[test]
-    fn the_patch_hypothesis_finds_the_rendered_roughness() {
-        let n = 400;
+    /// One segment of `n` pixels in four cubes, one base colour per cube, dielectric, whose
+    /// photos are the factorised render at σ `truth`.
+    fn rendered_store(n: usize, truth: f32) -> PixelStore {
         let mut st = toy_store(n);
         st.pixels.seg.iter_mut().for_each(|s| *s = 0);
         let d = ShadingLayout::DIM;
-        let truth = 0.3;
         for i in 0..n {
             let cube = i % 4;
             st.pixels.x_world[i] = [0.1 + cube as f32, 0.5, 0.5];
@@ -1494,6 +1581,15 @@ mod tests {
             let c = factorised_render(kd.to_array(), ks.to_array(), truth, &sh);
             st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&c);
         }
+        st
+    }
+
+    /// On photos rendered at σ 0.3 with one colour per cube, the patch sweep proposes σ near
+    /// 0.3 for a fit that is not there, and the hop takes the segment most of the way there.
+    #[test]
+    fn the_patch_hypothesis_finds_the_rendered_roughness() {
+        let truth = 0.3;
+        let st = rendered_store(400, truth);
         let (tr, mut schedule) = toy_fitted(&st);
         // The hop runs at the schedule's last rate: keep it at the first so 50 steps can move σ.
         schedule.lr_end = 1.0;
