@@ -547,8 +547,9 @@ pub struct HopConfig {
     /// with σ to its target (false: σ alone, m left where the fit had it).
     pub patch_dielectric: bool,
     /// Weight of the pull that holds a candidate hopping as a metal (its target names m ≥ 0.5,
-    /// or it names no m and the fit has it at m ≥ 0.5) at its target through the release phase,
-    /// as a patch candidate is held (0: released, like every other candidate).
+    /// or it names no m and the fit has it at m ≥ 0.5) at its target σ, and m where the target
+    /// names one, through the release phase in place of releasing it (0: released, like every
+    /// other candidate but the patch candidates).
     pub hold_metals: f32,
 }
 

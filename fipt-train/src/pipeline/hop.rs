@@ -686,8 +686,9 @@ pub fn hop(
 /// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
 /// names one) pulled to their targets, then as many steps again released, except with `held`
 /// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
-/// alone would take them back) and, with `hold_metals`, the candidates that hop as metals (a
-/// small metal shares its grid cells with what surrounds it, which takes it back). Where `anchor` > 0, every other segment of `held_at` (segment,
+/// alone would take them back) and, with `hold_metals` > 0, the candidates that hop as metals,
+/// pulled at that weight (with the colour free again the data is flat over a mirror's σ, and
+/// the prior takes it rough). Where `anchor` > 0, every other segment of `held_at` (segment,
 /// mean σ, mean m) is pulled to its σ and m through both phases. Returns the hopped trainer and
 /// the steps run.
 fn hop_phases(
@@ -723,10 +724,15 @@ fn hop_phases(
             .collect(),
     };
     let pull = pull_of(&chosen.iter().collect::<Vec<_>>(), plan.cfg.pull);
-    // What stays pulled in the release phase: every candidate where `held`, else the metals
-    // at `hold_metals` (None: nothing).
-    let metals: Vec<&HopCandidate> = chosen.iter().filter(|c| holds_metal(plan.cfg, c)).collect();
-    let release = (!held && !metals.is_empty()).then(|| pull_of(&metals, plan.cfg.hold_metals));
+    // The pull of the release phase: the same where `held`, else the candidates that hop as
+    // metals at `hold_metals` (None: none).
+    let release = if held {
+        Some(pull.clone())
+    } else {
+        let metals: Vec<&HopCandidate> =
+            chosen.iter().filter(|c| holds_metal(plan.cfg, c)).collect();
+        (!metals.is_empty()).then(|| pull_of(&metals, plan.cfg.hold_metals))
+    };
     // The segments not hopping, held where they were (`anchor`).
     let anchor = (plan.cfg.anchor > 0.0).then(|| {
         let others = held_at
@@ -747,7 +753,7 @@ fn hop_phases(
             pb.finish_and_clear();
             return Err(e);
         }
-        if s == phase && !held {
+        if s == phase {
             tr.pull = release.clone();
         }
         idx.clear();
@@ -1497,6 +1503,16 @@ mod tests {
         assert!(
             (1.0 - m_held) + 0.2 < 1.0 - m_released,
             "m {m_held} held, {m_released} released (σ {held} and {released}, for {target})"
+        );
+        // Held at a weight too small to matter, it ends where released: the weight is the hold's.
+        let faint = HopConfig {
+            hold_metals: 1e-6,
+            ..base.clone()
+        };
+        let (_, m_faint) = hopped(&faint, &metal);
+        assert!(
+            (m_faint - m_released).abs() < 0.05,
+            "m {m_faint} held at 1e-6, {m_released} released"
         );
         // A dielectric's hop is the same with the key as without.
         assert_eq!(hopped(&base, &dielectric), hopped(&hold, &dielectric));
