@@ -889,7 +889,11 @@ impl HopConfig {
             "train.hop.steps",
             "must be in (0, 1]",
         )?;
-        for (k, v) in [("train.hop.pull", h.pull), ("train.hop.anchor", h.anchor)] {
+        for (k, v) in [
+            ("train.hop.pull", h.pull),
+            ("train.hop.anchor", h.anchor),
+            ("train.hop.hold_metals", h.hold_metals),
+        ] {
             check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
         }
         check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;

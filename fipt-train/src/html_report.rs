@@ -520,7 +520,7 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
     if rows.is_empty() {
         return;
     }
-    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, at the last round's material, or at another σ with the colour solved per patch) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell. Patch candidates hop after the others, held at their targets, and are kept or undone on their own.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
+    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, at the last round's material, or at another σ with the colour solved per patch) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell. Patch candidates hop after the others, held at their targets, and are kept or undone on their own; with <code>train.hop.hold_metals</code>, candidates hopping as metals stay pulled through the release at that weight.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
     for r in rows {
         h.push_str(&r);
     }

@@ -28,7 +28,7 @@ pub(super) enum GridOpt {
 }
 
 /// A pull of the roughness, and where given the metallic, towards per-segment targets, added
-/// to the loss of every step while it is set (`Trainer::pull`): the first phase of a basin hop
+/// to the loss of every step while it is set (`Trainer::pull`): the phases of a basin hop
 /// (`loss::sigma_pull_loss` on each, reported with the prior). Segment ids are the batch's own
 /// (`Batch::seg`); pixels of other segments are not pulled.
 #[derive(Clone, Debug, Default)]
