@@ -344,9 +344,11 @@ fn fast_run_on_the_ldr_twin_recovers_lamps_and_materials() {
     twin(&common::scene_dir(), &twin_dir, &[]);
     let truth = fipt_train::ldr::TwinTruth::load(&twin_dir.join("ldr.json")).unwrap();
     let out = dir.join("run");
-    // `configs/fast.json` with fits of 300 steps. Measured on this twin against 600 steps: k_d
-    // 29.86 dB against 29.90, LDR view synthesis 34.84 against 34.90 dB, the worst lamp 17.9 %
-    // off against 18.4 %, in 350 s against 436 s (release build, 2 cores).
+    // `configs/fast.json` with fits of 300 steps (against 600 steps, when the solve read the
+    // bake's L′: k_d 29.86 dB against 29.90, LDR view synthesis 34.84 against 34.90 dB, the
+    // worst lamp 17.9 % off against 18.4 %, in 350 s against 436 s; release build, 2 cores).
+    // With the solve's L′ rebuilt (`ldr.solve_without_emitters`, `ldr.fill_clipped_surfaces`):
+    // k_d 30.44 dB, LDR view synthesis 34.83 dB, the worst lamp 6.4 % off.
     let mut fast: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(common::scene_dir().join("../../configs/fast.json")).unwrap(),
     )
@@ -415,9 +417,10 @@ fn fast_run_on_the_ldr_twin_recovers_lamps_and_materials() {
     eprintln!(
         "lamp radiance: scale {scale:.3}, worst relative error {worst:.3}, ratios {ratios:.3?}"
     );
-    // Kept at their clip level, the lamps would be off by more than 150 % after the scale.
+    // Kept at their clip level, the lamps would be off by more than 150 % after the scale; solved
+    // on the bake's L′, whose voxels next to a lamp hold its radiance, 17.9 %.
     assert!(
-        worst < 0.45,
+        worst < 0.12,
         "lamp radiance off by {worst:.3} after the global scale"
     );
     assert!(m["emission_iou"].as_f64().unwrap() >= 0.9);

@@ -148,6 +148,13 @@ pub struct LdrSection {
     /// samples, each the instrument of the other's, against the bias that their Monte Carlo
     /// noise gives least squares (false: ordinary least squares; `docs/ldr.md`).
     pub solve_instruments: bool,
+    /// The emitter solve after round 0 reads L′ with the clipped channels of surface pixels
+    /// (not lamps) raised to round 0's render there: a clipped channel records only its clip
+    /// level, and the solve would give the light those surfaces lack to the lamps.
+    pub fill_clipped_surfaces: bool,
+    /// The emitter solve after round 0 reads L′ without the pixels on and within
+    /// `refine.paths.cache_margin` of an emitter, as the refinement does.
+    pub solve_without_emitters: bool,
 }
 
 impl Default for LdrSection {
@@ -161,6 +168,8 @@ impl Default for LdrSection {
             solve_pixels: 20_000,
             light_samples: 512,
             solve_instruments: true,
+            fill_clipped_surfaces: true,
+            solve_without_emitters: true,
         }
     }
 }

@@ -684,9 +684,14 @@ fn ldr_section(h: &mut String, l: &crate::ldr::report::LdrReport) {
         ("after round 0 (kept)", &l.light_resolve),
     ] {
         let Some(solve) = solve else { continue };
+        let raised = solve
+            .surface_pixels_filled
+            .map_or(String::new(), |n| {
+                format!(" (its L′ with the clipped channels of {n} surface pixels raised to round 0's render)")
+            });
         let _ = write!(
             h,
-            "<p>Clipped lamps, solved {title} from {} pixels of {} parts:</p><table><tr><th>triangles</th><th>pixels</th><th>clipped</th><th>extracted radiance</th><th>solved radiance</th></tr>",
+            "<p>Clipped lamps, solved {title} from {} pixels of {} parts{raised}:</p><table><tr><th>triangles</th><th>pixels</th><th>clipped</th><th>extracted radiance</th><th>solved radiance</th></tr>",
             solve.pixels, solve.parts
         );
         for lamp in &solve.lamps {

@@ -55,6 +55,10 @@ pub struct LightSolve {
     /// The response estimated with the solve (`super::response`), where it was.
     #[serde(default)]
     pub response: Option<super::response::ResponseFit>,
+    /// Surface pixels whose clipped channels the solve's L′ raised to the fit's render
+    /// (`ldr.fill_clipped_surfaces`), where it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface_pixels_filled: Option<usize>,
 }
 
 /// Settings of the solve.

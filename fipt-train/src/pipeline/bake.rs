@@ -113,6 +113,46 @@ pub fn light_field_without_emitters(
     (lf, gone)
 }
 
+/// L′ rebuilt from the training photos with some pixels' values replaced and some left out:
+/// `replace(k, p)` gives pixel `p` of view `k` its value, or None to keep the photo's, and
+/// `left_out(k, p)` leaves it out; same grid, scene box and hole filling as the bake's.
+pub fn light_field_replacing(
+    ds: &fipt_core::scene::Dataset,
+    baked: &Baked,
+    cfg: &BakeConfig,
+    replace: impl Fn(usize, usize) -> Option<[f32; 3]>,
+    left_out: &(dyn Fn(usize, usize) -> bool + Sync),
+) -> LightField {
+    let images: Vec<Vec<f32>> = ds
+        .train
+        .views
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let mut img = v.image.data.clone();
+            for p in 0..img.len() / 3 {
+                if let Some(x) = replace(k, p) {
+                    img[3 * p..3 * p + 3].copy_from_slice(&x);
+                }
+            }
+            img
+        })
+        .collect();
+    let views: Vec<BakeView> = ds
+        .train
+        .views
+        .iter()
+        .zip(&baked.hits)
+        .zip(&images)
+        .map(|((v, h), img)| BakeView {
+            hits: h,
+            image: img,
+            focal: v.camera.fx as f32,
+        })
+        .collect();
+    build_light_field_without(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, left_out)
+}
+
 fn train_views<'a>(train: &'a Split, hits: &'a [ViewHits]) -> Vec<BakeView<'a>> {
     train
         .views

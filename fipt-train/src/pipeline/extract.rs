@@ -118,7 +118,9 @@ fn add_saturated(
 }
 
 /// LDR photos: the solve of the clipped lamps among `emitters` (their radiance set in place),
-/// on the fit `tr` of `store`.
+/// on the fit `tr` of `store`. With `after_round0`, the solve reads L′ as `solve_light_field`
+/// rebuilds it where `ldr.fill_clipped_surfaces` or `ldr.solve_without_emitters` asks; the
+/// solve before the bake reads the bake's.
 pub fn solve_clipped_lamps(
     ctx: &RunContext,
     baked: &Baked,
@@ -126,12 +128,20 @@ pub fn solve_clipped_lamps(
     tr: &Trainer,
     emitters: &mut [Emitter],
     estimate_response: bool,
+    after_round0: bool,
 ) -> crate::ldr::lights::LightSolve {
     let cal = ctx.ldr.as_ref().expect("LDR photos");
-    crate::ldr::lights::solve_clipped(
+    let (fill, without) = (
+        after_round0 && ctx.cfg.ldr.fill_clipped_surfaces,
+        after_round0 && ctx.cfg.ldr.solve_without_emitters,
+    );
+    let rebuilt = (fill || without)
+        .then(|| solve_light_field(ctx, baked, store, tr, emitters, fill, without));
+    let light_field = rebuilt.as_ref().map_or(&baked.light_field, |(lf, _)| lf);
+    let mut solve = crate::ldr::lights::solve_clipped(
         &ctx.ds.mesh,
         &ctx.accel,
-        &baked.light_field,
+        light_field,
         &ctx.ds.train,
         &cal.train_exposures,
         &baked.hits,
@@ -147,5 +157,108 @@ pub fn solve_clipped_lamps(
                 == crate::ldr::calibrate::ExposureSource::Estimated,
             instruments: ctx.cfg.ldr.solve_instruments,
         },
-    )
+    );
+    solve.surface_pixels_filled = rebuilt.filter(|_| fill).map(|(_, n)| n);
+    solve
+}
+
+/// L′ for the solve after round 0. With `fill`: every clipped channel of a surface pixel (one
+/// on no emitter and not filled with a lamp's radiance) raised to the radiance the fit `tr`
+/// reflects there, where that is more. A clipped channel records only its clip level, so L′
+/// lacks the light of every surface brighter than that (a red cabinet next to a warm lamp, in
+/// its red), and the solve, which reads the light from everything but the lamps off L′, would
+/// give what is missing to the lamps that light the same pixels. With `without`: the pixels on
+/// and within `refine.paths.cache_margin` of an emitter left out, as in the refinement's L′
+/// (`Rounds::rebuild_cache`), so that no voxel or filled hole next to a lamp holds its
+/// radiance. Returns L′ and the number of pixels raised.
+fn solve_light_field(
+    ctx: &RunContext,
+    baked: &Baked,
+    store: &PixelStore,
+    tr: &Trainer,
+    emitters: &[Emitter],
+    fill: bool,
+    without: bool,
+) -> (fipt_bake::lightfield::LightField, usize) {
+    let emitter_tris: std::collections::HashSet<u32> =
+        emitters.iter().map(|e| e.triangle).collect();
+    let on_emitter = |t: i32| u32::try_from(t).is_ok_and(|t| emitter_tris.contains(&t));
+    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
+    let pred = if fill {
+        reflected(tr, store, &sizes)
+    } else {
+        Vec::new()
+    };
+    let left_out = if without {
+        super::pixels::on_or_near_emitters(
+            &baked.hits,
+            on_emitter,
+            ctx.cfg.refine.paths.cache_margin,
+        )
+    } else {
+        Vec::new()
+    };
+    let left = |k: usize, p: usize| left_out.get(k).is_some_and(|v| v[p]);
+    let raised = std::sync::atomic::AtomicUsize::new(0);
+    let views = &ctx.ds.train.views;
+    let replace = |k: usize, p: usize| {
+        let f = views[k].ldr.as_ref().filter(|_| fill)?;
+        if f.is_filled(p) || on_emitter(baked.hits[k].tri[p]) || left(k, p) {
+            return None;
+        }
+        let photo: [f32; 3] = std::array::from_fn(|c| views[k].image.data[3 * p + c]);
+        let render: [f32; 3] = std::array::from_fn(|c| pred[k][3 * p + c]);
+        let x = raise_clipped(photo, std::array::from_fn(|c| f.clipped(p, c)), render)?;
+        raised.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Some(x)
+    };
+    let lf = super::bake::light_field_replacing(&ctx.ds, baked, &ctx.bake_cfg, replace, &left);
+    (lf, raised.into_inner())
+}
+
+/// A surface pixel's photo value with each clipped channel raised to the render where that is
+/// more (a clipped channel reads its clip level, a lower bound); None where nothing rises.
+fn raise_clipped(photo: [f32; 3], clipped: [bool; 3], render: [f32; 3]) -> Option<[f32; 3]> {
+    let x: [f32; 3] = std::array::from_fn(|c| {
+        if clipped[c] {
+            photo[c].max(render[c])
+        } else {
+            photo[c]
+        }
+    });
+    (x != photo).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::raise_clipped;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Only clipped channels move, never down, and only to the render.
+        #[test]
+        fn only_clipped_channels_rise_to_the_render(
+            photo in prop::array::uniform3(0.0f32..4.0),
+            clipped in prop::array::uniform3(any::<bool>()),
+            render in prop::array::uniform3(0.0f32..8.0),
+        ) {
+            match raise_clipped(photo, clipped, render) {
+                None => {
+                    for c in 0..3 {
+                        prop_assert!(!clipped[c] || render[c] <= photo[c]);
+                    }
+                }
+                Some(x) => {
+                    prop_assert!(x != photo);
+                    for c in 0..3 {
+                        if clipped[c] {
+                            prop_assert_eq!(x[c], photo[c].max(render[c]));
+                        } else {
+                            prop_assert_eq!(x[c], photo[c]);
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

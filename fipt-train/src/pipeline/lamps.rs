@@ -10,7 +10,9 @@
 //! HDR run (IRIS re-bakes its shadings with the learned emitter radiance likewise), except that
 //! round 0's emitters are solved once more (`extract::solve_clipped_lamps`): the photos' full
 //! lamps now show in the mask, faces no photo saw included, which the first solve lacked and
-//! made up for in brightness.
+//! made up for in brightness. That solve reads L′ rebuilt without the lamps' pixels and with
+//! the clipped surfaces raised to round 0's render (`ldr.solve_without_emitters`,
+//! `ldr.fill_clipped_surfaces`).
 //!
 //! The solve is cached in `OUT/cache/lamps.json`, keyed by the clipped photos' bake key, the
 //! config and the program, so a resumed run skips it.
@@ -120,6 +122,8 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
         &tr,
         &mut emitters,
         ctx.cfg.ldr.estimate_response,
+        // The first fit saw the lamps at their clip level: its renders are no fill.
+        false,
     ))
 }
 

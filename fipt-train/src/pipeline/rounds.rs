@@ -438,7 +438,7 @@ impl Rounds {
             ctx.seeds.base(),
         );
         if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
-            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e, false);
+            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e, false, true);
             self.ck.put(0, LIGHT_SOLVE, &solve)?;
             self.light_resolve = Some(solve);
         }
