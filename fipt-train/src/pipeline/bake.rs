@@ -106,16 +106,14 @@ pub fn light_field_without_emitters(
 ) -> (LightField, usize) {
     let left_out = super::pixels::on_or_near_emitters(&baked.hits, is_emitter, margin);
     let gone = left_out.iter().flatten().filter(|b| **b).count();
-    let views = train_views(&ds.train, &baked.hits);
-    let lf = build_light_field_without(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, &|k, p| {
-        left_out[k][p]
-    });
+    let lf = light_field_replacing(ds, baked, cfg, |_, _| None, &|k, p| left_out[k][p]);
     (lf, gone)
 }
 
 /// L′ rebuilt from the training photos with some pixels' values replaced and some left out:
-/// `replace(k, p)` gives pixel `p` of view `k` its value, or None to keep the photo's, and
-/// `left_out(k, p)` leaves it out; same grid, scene box and hole filling as the bake's.
+/// `replace(k, p)` gives pixel `p` of view `k` its value, or None to keep the photo's (only a
+/// view with a replaced pixel is copied), and `left_out(k, p)` leaves it out; same grid, scene
+/// box and hole filling as the bake's.
 pub fn light_field_replacing(
     ds: &fipt_core::scene::Dataset,
     baked: &Baked,
@@ -123,33 +121,28 @@ pub fn light_field_replacing(
     replace: impl Fn(usize, usize) -> Option<[f32; 3]>,
     left_out: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> LightField {
-    let images: Vec<Vec<f32>> = ds
+    let images: Vec<Option<Vec<f32>>> = ds
         .train
         .views
         .iter()
         .enumerate()
         .map(|(k, v)| {
-            let mut img = v.image.data.clone();
-            for p in 0..img.len() / 3 {
+            let mut img: Option<Vec<f32>> = None;
+            for p in 0..v.image.data.len() / 3 {
                 if let Some(x) = replace(k, p) {
-                    img[3 * p..3 * p + 3].copy_from_slice(&x);
+                    img.get_or_insert_with(|| v.image.data.clone())[3 * p..3 * p + 3]
+                        .copy_from_slice(&x);
                 }
             }
             img
         })
         .collect();
-    let views: Vec<BakeView> = ds
-        .train
-        .views
-        .iter()
-        .zip(&baked.hits)
-        .zip(&images)
-        .map(|((v, h), img)| BakeView {
-            hits: h,
-            image: img,
-            focal: v.camera.fx as f32,
-        })
-        .collect();
+    let mut views = train_views(&ds.train, &baked.hits);
+    for (v, img) in views.iter_mut().zip(&images) {
+        if let Some(img) = img {
+            v.image = img;
+        }
+    }
     build_light_field_without(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings, left_out)
 }
 

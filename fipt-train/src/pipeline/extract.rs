@@ -10,31 +10,28 @@
 
 use super::bake::Baked;
 use super::context::RunContext;
-use super::fit::reflected;
 use super::pixels::PixelStore;
 use crate::config::EmitterSection;
 use fipt_bake::emitters::{self, Emitter, ExtractConfig, ObservedView};
 use fipt_core::model::Trainer;
 use fipt_core::scene::{Mesh, Split};
 
-/// The emitters of the fitted model, from the training photos.
+/// The emitters of the fitted model `tr`, from the training photos and the radiance it
+/// reflects at every training pixel (`fit::reflected`).
 pub fn extract_emitters(
     mesh: &Mesh,
     train: &Split,
     baked: &Baked,
-    store: &PixelStore,
     tr: &Trainer,
+    reflected: &[Vec<f32>],
     cfg: &EmitterSection,
     seed: u64,
 ) -> Vec<Emitter> {
-    // The reflected radiance is only needed for the extraction rule.
-    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
-    let reflected = reflected(tr, store, &sizes);
     let views: Vec<ObservedView> = baked
         .hits
         .iter()
         .zip(&train.views)
-        .zip(&reflected)
+        .zip(reflected)
         .map(|((hits, v), r)| ObservedView {
             hits,
             image: v.image.data.as_slice(),
@@ -118,9 +115,10 @@ fn add_saturated(
 }
 
 /// LDR photos: the solve of the clipped lamps among `emitters` (their radiance set in place),
-/// on the fit `tr` of `store`. With `after_round0`, the solve reads L′ as `solve_light_field`
+/// on the fit `tr` of `store`. After round 0, `round0` holds the radiance that fit reflects at
+/// every training pixel (`fit::reflected`), and the solve reads L′ as `solve_light_field`
 /// rebuilds it where `ldr.fill_clipped_surfaces` or `ldr.solve_without_emitters` asks; the
-/// solve before the bake reads the bake's.
+/// solve before the bake (None) reads the bake's.
 pub fn solve_clipped_lamps(
     ctx: &RunContext,
     baked: &Baked,
@@ -128,15 +126,13 @@ pub fn solve_clipped_lamps(
     tr: &Trainer,
     emitters: &mut [Emitter],
     estimate_response: bool,
-    after_round0: bool,
+    round0: Option<&[Vec<f32>]>,
 ) -> crate::ldr::lights::LightSolve {
     let cal = ctx.ldr.as_ref().expect("LDR photos");
-    let (fill, without) = (
-        after_round0 && ctx.cfg.ldr.fill_clipped_surfaces,
-        after_round0 && ctx.cfg.ldr.solve_without_emitters,
-    );
-    let rebuilt = (fill || without)
-        .then(|| solve_light_field(ctx, baked, store, tr, emitters, fill, without));
+    let fill = round0.filter(|_| ctx.cfg.ldr.fill_clipped_surfaces);
+    let without = round0.is_some() && ctx.cfg.ldr.solve_without_emitters;
+    let rebuilt =
+        (fill.is_some() || without).then(|| solve_light_field(ctx, baked, emitters, fill, without));
     let light_field = rebuilt.as_ref().map_or(&baked.light_field, |(lf, _)| lf);
     let mut solve = crate::ldr::lights::solve_clipped(
         &ctx.ds.mesh,
@@ -158,37 +154,29 @@ pub fn solve_clipped_lamps(
             instruments: ctx.cfg.ldr.solve_instruments,
         },
     );
-    solve.surface_pixels_filled = rebuilt.filter(|_| fill).map(|(_, n)| n);
+    solve.surface_pixels_filled = rebuilt.filter(|_| fill.is_some()).map(|(_, n)| n);
     solve
 }
 
-/// L′ for the solve after round 0. With `fill`: every clipped channel of a surface pixel (one
-/// on no emitter and not filled with a lamp's radiance) raised to the radiance the fit `tr`
-/// reflects there, where that is more. A clipped channel records only its clip level, so L′
-/// lacks the light of every surface brighter than that (a red cabinet next to a warm lamp, in
-/// its red), and the solve, which reads the light from everything but the lamps off L′, would
-/// give what is missing to the lamps that light the same pixels. With `without`: the pixels on
+/// L′ for the solve after round 0. With `fill` (round 0's reflected radiance per training
+/// pixel): every clipped channel of a surface pixel (one on no emitter and not filled with a
+/// lamp's radiance) raised to that render, where it is more. A clipped channel records only
+/// its clip level, so L′ lacks the light of every surface brighter than that (a red cabinet
+/// next to a warm lamp, in its red), and the solve, which reads the light from everything but
+/// the lamps off L′, would give what is missing to the lamps that light the same pixels. With `without`: the pixels on
 /// and within `refine.paths.cache_margin` of an emitter left out, as in the refinement's L′
 /// (`Rounds::rebuild_cache`), so that no voxel or filled hole next to a lamp holds its
 /// radiance. Returns L′ and the number of pixels raised.
 fn solve_light_field(
     ctx: &RunContext,
     baked: &Baked,
-    store: &PixelStore,
-    tr: &Trainer,
     emitters: &[Emitter],
-    fill: bool,
+    fill: Option<&[Vec<f32>]>,
     without: bool,
 ) -> (fipt_bake::lightfield::LightField, usize) {
     let emitter_tris: std::collections::HashSet<u32> =
         emitters.iter().map(|e| e.triangle).collect();
     let on_emitter = |t: i32| u32::try_from(t).is_ok_and(|t| emitter_tris.contains(&t));
-    let sizes: Vec<usize> = baked.hits.iter().map(|h| h.num_pixels()).collect();
-    let pred = if fill {
-        reflected(tr, store, &sizes)
-    } else {
-        Vec::new()
-    };
     let left_out = if without {
         super::pixels::on_or_near_emitters(
             &baked.hits,
@@ -202,7 +190,8 @@ fn solve_light_field(
     let raised = std::sync::atomic::AtomicUsize::new(0);
     let views = &ctx.ds.train.views;
     let replace = |k: usize, p: usize| {
-        let f = views[k].ldr.as_ref().filter(|_| fill)?;
+        let pred = fill?;
+        let f = views[k].ldr.as_ref()?;
         if f.is_filled(p) || on_emitter(baked.hits[k].tri[p]) || left(k, p) {
             return None;
         }

@@ -17,10 +17,11 @@ use fipt_core::shading::ShadingLayout;
 use std::path::Path;
 
 /// The reflected radiance the trained BRDF predicts from the stored shadings at every stored
-/// pixel, scattered back into per-view images (3 floats per pixel, zeros at misses).
-pub fn reflected(tr: &Trainer, store: &PixelStore, pixels_per_view: &[usize]) -> Vec<Vec<f32>> {
+/// pixel, scattered back into per-view images of the sizes of `hits` (3 floats per pixel, zeros
+/// at misses).
+pub fn reflected(tr: &Trainer, store: &PixelStore, hits: &[fipt_bake::ViewHits]) -> Vec<Vec<f32>> {
     let mat = tr.model.material(&store.pixels.x_unit);
-    let mut out: Vec<Vec<f32>> = pixels_per_view.iter().map(|&n| vec![0.0; 3 * n]).collect();
+    let mut out: Vec<Vec<f32>> = hits.iter().map(|h| vec![0.0; 3 * h.num_pixels()]).collect();
     for (i, &(k, p)) in store.origin.iter().enumerate() {
         let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
         let (kd, ks) = reflectances(a, mat.metallic[i]);

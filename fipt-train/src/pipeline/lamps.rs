@@ -110,8 +110,8 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
         &ctx.ds.mesh,
         &ctx.ds.train,
         &baked,
-        &store,
         &tr,
+        &fit::reflected(&tr, &store, &baked.hits),
         &ctx.cfg.emitters,
         ctx.seeds.base(),
     );
@@ -123,7 +123,7 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
         &mut emitters,
         ctx.cfg.ldr.estimate_response,
         // The first fit saw the lamps at their clip level: its renders are no fill.
-        false,
+        None,
     ))
 }
 

@@ -428,17 +428,26 @@ impl Rounds {
         if self.emitters.is_some() {
             return Ok(());
         }
+        let reflected = super::fit::reflected(tr, store, &baked.hits);
         let mut e = extract::extract_emitters(
             &ctx.ds.mesh,
             &ctx.ds.train,
             baked,
-            store,
             tr,
+            &reflected,
             &ctx.cfg.emitters,
             ctx.seeds.base(),
         );
         if ctx.ldr.is_some() && ctx.cfg.ldr.solve_emitters {
-            let solve = extract::solve_clipped_lamps(ctx, baked, store, tr, &mut e, false, true);
+            let solve = extract::solve_clipped_lamps(
+                ctx,
+                baked,
+                store,
+                tr,
+                &mut e,
+                false,
+                Some(&reflected),
+            );
             self.ck.put(0, LIGHT_SOLVE, &solve)?;
             self.light_resolve = Some(solve);
         }
