@@ -845,6 +845,7 @@ fn build_model(root: &Path) -> (PathBuf, Manifest) {
             .with_width(8)
             .with_skip(1),
         scene_box: sb,
+        parts: 0,
     };
     let device = burn::tensor::Device::flex();
     let model = FiptModel::init(spec, &device, 5);

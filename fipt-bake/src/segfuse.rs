@@ -29,15 +29,16 @@ pub fn fuse_labels(
             }
         }
     }
+    votes.iter().map(majority).collect()
+}
+
+/// The label with the most votes, the smallest on a tie; `UNLABELLED` without votes.
+pub fn majority(votes: &HashMap<i32, u32>) -> i32 {
     votes
         .iter()
-        .map(|v| {
-            v.iter()
-                .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
-                .map(|(&lab, _)| lab)
-                .unwrap_or(UNLABELLED)
-        })
-        .collect()
+        .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))
+        .map(|(&lab, _)| lab)
+        .unwrap_or(UNLABELLED)
 }
 
 /// Re-renders a label map from per-triangle labels.

@@ -6,7 +6,7 @@ use burn::tensor::Device;
 use fipt_core::model::step::SegMode;
 mod common;
 use common::batch;
-use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, TrainConfig, Trainer};
+use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, PartMap, TrainConfig, Trainer};
 use fipt_core::scene::SceneBox;
 use std::path::PathBuf;
 
@@ -32,51 +32,104 @@ fn params(t: &Trainer) -> (Vec<Vec<f32>>, Vec<f32>) {
 
 #[test]
 fn restored_fit_continues_bit_identically() {
-    restore_and_continue(false);
+    restore_and_continue(false, false);
 }
 
 /// The same with the table resident on the device: its burn record (parameter ids included)
 /// and burn's Adam state of it are saved and restored.
 #[test]
 fn restored_device_grid_fit_continues_bit_identically() {
-    restore_and_continue(true);
+    restore_and_continue(true, false);
 }
 
-fn restore_and_continue(device_grid: bool) {
+/// The same with part offsets (`part_offsets`): their table, its Adam state and the triangle
+/// map (`parts.bin`) are saved and restored.
+#[test]
+fn restored_fit_with_part_offsets_continues_bit_identically() {
+    restore_and_continue(false, true);
+}
+
+/// A map of five triangles over two labelled parts, one triangle unlabelled.
+fn part_map() -> PartMap {
+    PartMap::from_labels(&[4, 9, -1, 9, 4])
+}
+
+fn restore_and_continue(device_grid: bool, parts: bool) {
     let config = || config().with_device_grid(device_grid);
     let dev = Device::flex();
-    let batches: Vec<Batch> = (0..6).map(|s| batch(256, 40 + s)).collect();
-    let mut whole = Trainer::new(config(), UNIT, &dev, 5);
+    let map = if parts {
+        part_map()
+    } else {
+        PartMap::default()
+    };
+    let batches: Vec<Batch> = (0..6)
+        .map(|s| {
+            let mut b = batch(256, 40 + s);
+            if parts {
+                let tris: Vec<u32> = (0..b.len() as u32).map(|i| i % 5).collect();
+                b.part = map.rows(&tris);
+            }
+            b
+        })
+        .collect();
+    let fresh = || Trainer::with_parts(config(), UNIT, map.clone(), &dev, 5);
+    let mut whole = fresh();
     let losses: Vec<f32> = batches
         .iter()
         .map(|b| whole.step(b, SegMode::Semantic).total)
         .collect();
 
-    let mut first = Trainer::new(config(), UNIT, &dev, 5);
+    let mut first = fresh();
     for b in &batches[..3] {
         first.step(b, SegMode::Semantic);
     }
-    let dir = tmp(if device_grid { "ok-dev" } else { "ok" });
+    let dir = tmp(&format!("ok-{device_grid}-{parts}"));
     first.save_state(&dir).unwrap();
     drop(first);
     let mut resumed = Trainer::restore(config(), &dev, 5, &dir).unwrap();
     assert_eq!(resumed.steps, 3);
+    assert_eq!(resumed.model.part_map, map);
     for (k, b) in batches[3..].iter().enumerate() {
         let l = resumed.step(b, SegMode::Semantic).total;
         assert_eq!(l, losses[3 + k], "loss of step {}", 3 + k);
     }
     let (nets_a, table_a) = params(&whole);
     let (nets_b, table_b) = params(&resumed);
+    if parts {
+        // The offsets are the last parameters; they moved away from zero.
+        let offsets = nets_a.last().unwrap();
+        assert!(
+            offsets.iter().any(|&v| v != 0.0),
+            "part offsets never trained"
+        );
+    }
     assert_eq!(nets_a, nets_b, "network parameters after 6 steps");
     assert_eq!(table_a, table_b, "hash table after 6 steps");
     // Without the optimiser state the continuation differs: the test can tell.
-    let mut fresh_optim = Trainer::new(config(), UNIT, &dev, 5);
+    let mut fresh_optim = fresh();
     fresh_optim.model = Trainer::restore(config(), &dev, 5, &dir).unwrap().model;
     for b in &batches[3..] {
         fresh_optim.step(b, SegMode::Semantic);
     }
     assert_ne!(params(&fresh_optim).1, table_a);
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A part map that names rows past the model's parts, or is cut short, is refused by name.
+#[test]
+fn damaged_part_maps_are_refused_by_name() {
+    let dev = Device::flex();
+    let t = Trainer::with_parts(config(), UNIT, part_map(), &dev, 1);
+    for (how, bytes) in [("cut", vec![0u8; 7]), ("row", 7u32.to_le_bytes().to_vec())] {
+        let dir = tmp(&format!("bad-parts-{how}"));
+        t.save_state(&dir).unwrap();
+        std::fs::write(dir.join("parts.bin"), bytes).unwrap();
+        let err = Trainer::restore(config(), &dev, 1, &dir)
+            .err()
+            .unwrap_or_else(|| panic!("parts.bin {how}: accepted"));
+        assert!(err.contains("parts.bin"), "{how}: {err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
 
 #[test]

@@ -313,8 +313,8 @@ fn device_resident_step_matches_cpu_path() {
     let xs: Vec<[f32; 3]> = b.x_unit.iter().take(5000).copied().collect();
     let mut host_model = gpu.model.clone();
     host_model.device_grid = None;
-    let on_device = gpu.model.material(&xs);
-    let on_host = host_model.material(&xs);
+    let on_device = gpu.model.material(&xs, &[]);
+    let on_host = host_model.material(&xs, &[]);
     assert_close("a queried on the device", &on_device.a, &on_host.a);
     assert_close("σ queried on the device", &on_device.sigma, &on_host.sigma);
     assert_close(

@@ -269,6 +269,10 @@ pub struct TrainSection {
     pub emission_freqs: usize,
     pub emission_depth: usize,
     pub emission_width: usize,
+    /// A learned offset of the material head's five logits per segment of the labels, added
+    /// at every point of the triangles the segment covers (`fipt_core::model::part_offsets`;
+    /// false: none, the reference). Needs part or semantic labels.
+    pub part_offsets: bool,
     /// Where the hash grid lives (`auto`: on the device for wgpu, on the host for the CPU
     /// backends).
     pub grid_place: GridPlace,
@@ -312,6 +316,7 @@ impl Default for TrainSection {
             emission_freqs: 10,
             emission_depth: 6,
             emission_width: 128,
+            part_offsets: false,
             grid_place: GridPlace::Auto,
             hop: Some(HopConfig::default()),
         }

@@ -48,7 +48,7 @@ impl MaterialSource for LearnedMaterials {
             .model
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .material_world(points);
+            .material_world(points, tris);
         out.extend(tris.iter().enumerate().map(|(i, &t)| {
             if self.black.get(t as usize).copied().unwrap_or(false) {
                 SurfaceMaterial::BLACK
@@ -85,7 +85,7 @@ mod tests {
             .map(|i| Vec3::new(0.05 * i as f32, 1.0, 2.0 - 0.03 * i as f32))
             .collect();
         let tris: Vec<u32> = (0..50).map(|i| i % 5).collect();
-        let direct = tr.model.material_world(&pts);
+        let direct = tr.model.material_world(&pts, &tris);
         let src = LearnedMaterials::new(tr.model, 5, &[3]);
         let mut out = Vec::new();
         src.query(&pts, &tris, &mut out);

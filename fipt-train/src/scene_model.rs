@@ -8,6 +8,7 @@
 //!   model.json      field configs and scene box      }
 //!   fields.bpk      material MLP and emission mask   } fipt-core's FiptModel
 //!   hashgrid.f16    hash table, IEEE half            }
+//!   parts.bin       part offsets' triangle map       } (with `train.part_offsets` only)
 //!   mesh.obj        the scene's triangle mesh (triangle order kept)
 //!   emitters.json   the extracted emitters (per-triangle radiance, observed sides)
 //!   lightfield.bin  L′, the radiance cache of view synthesis (fipt-bake's compact form)
@@ -356,6 +357,14 @@ impl SceneModel {
                 mesh_path.display()
             );
         }
+        let rows = model.part_map.tri_row.len();
+        if model.spec.parts > 0 && rows != mesh.num_triangles() {
+            bail!(
+                "{}: {rows} triangles, but the mesh has {}",
+                dir.join("parts.bin").display(),
+                mesh.num_triangles()
+            );
+        }
         let em_path = dir.join("emitters.json");
         let text = fipt_core::io::read_text(&em_path)?;
         #[derive(Deserialize)]
@@ -487,7 +496,10 @@ mod tests {
                 )
             })
             .collect();
-        let (a, b) = (model.material_world(&pts), back.model.material_world(&pts));
+        let (a, b) = (
+            model.material_world(&pts, &[]),
+            back.model.material_world(&pts, &[]),
+        );
         let diff = |x: &[f32], y: &[f32]| {
             x.iter()
                 .zip(y)
@@ -497,7 +509,7 @@ mod tests {
         let d16 = diff(&a.a, &b.a)
             .max(diff(&a.sigma, &b.sigma))
             .max(diff(&a.metallic, &b.metallic));
-        let other = parts_seeded(9).material_world(&pts);
+        let other = parts_seeded(9).material_world(&pts, &[]);
         let dother = diff(&a.a, &other.a).max(diff(&a.sigma, &other.sigma));
         assert!(
             d16 < 2e-3 && d16 * 20.0 < dother,

@@ -9,9 +9,10 @@ use super::fields::{
 };
 use super::hashgrid::HashGrid;
 use super::hashgrid_device::{self, GridTables};
+use super::part_offsets::{PartMap, PartOffsets};
 use crate::scene::SceneBox;
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 use std::path::Path;
 
 /// The optimised networks (everything but the host hash table).
@@ -19,6 +20,8 @@ use std::path::Path;
 pub struct Nets {
     pub material: Mlp,
     pub emission: EmissionMask,
+    /// Per-part offsets of the material head (`ModelSpec::parts` rows; None when 0).
+    pub part_offsets: Option<PartOffsets>,
 }
 
 /// What a saved model needs to be rebuilt before its parameters are read: the field configs
@@ -28,6 +31,13 @@ pub struct ModelSpec {
     pub material: MaterialFieldConfig,
     pub emission: EmissionMaskConfig,
     pub scene_box: SceneBox,
+    /// Rows of the per-part offset table (`part_offsets`; 0: none, the reference's field).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub parts: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl ModelSpec {
@@ -46,6 +56,9 @@ impl ModelSpec {
                 "emission: width must be in [1, 1024], depth in [1, 32], freqs at most 32".into(),
             );
         }
+        if self.parts > 1 << 20 {
+            return Err("parts: at most 2^20".into());
+        }
         let b = &self.scene_box;
         if !(b.min.is_finite() && b.max.is_finite() && b.min < b.max) {
             return Err("scene_box: min and max must be finite, min < max".into());
@@ -60,6 +73,8 @@ pub struct FiptModel {
     pub spec: ModelSpec,
     pub grid: HashGrid,
     pub nets: Nets,
+    /// The triangle → row map of the part offsets (`spec.parts` parts; empty without them).
+    pub part_map: PartMap,
     /// The table resident on the device (`hashgrid_device`), when the model was fitted or is
     /// queried there; `grid.table` then holds its last host copy (`sync_host_table`).
     pub device_grid: Option<GridTables>,
@@ -86,6 +101,8 @@ fn tensor2(v: Vec<f32>, shape: [usize; 2], dev: &Device) -> Tensor<2> {
 const NETS_FILE: &str = "fields.bpk";
 const GRID_FILE: &str = "hashgrid.bin";
 const GRID_FILE_F16: &str = "hashgrid.f16";
+/// The part offsets' triangle → row map (`PartMap::to_bytes`), where the model has them.
+const PARTS_FILE: &str = "parts.bin";
 
 /// How `save` stores the hash table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -102,16 +119,25 @@ const SPEC_FILE: &str = "model.json";
 impl FiptModel {
     /// A fresh model on `device`, every parameter initialised on the host from `seed` (so a
     /// seed gives the same model on every backend).
+    /// With `spec.parts` > 0 the part offsets start at zero and `part_map` is empty (every
+    /// triangle reads no offset) until the caller sets it.
     pub fn init(spec: ModelSpec, device: &Device, seed: u64) -> Self {
         let field = spec.material.init(device, seed);
         let emission = spec.emission.init(device, seed);
+        let part_offsets = (spec.parts > 0).then(|| PartOffsets::zeros(spec.parts, device));
+        let part_map = PartMap {
+            tri_row: Vec::new(),
+            parts: spec.parts,
+        };
         Self {
             spec,
             grid: field.grid,
             nets: Nets {
                 material: field.mlp,
                 emission,
+                part_offsets,
             },
+            part_map,
             device_grid: None,
             device: device.clone(),
         }
@@ -140,10 +166,19 @@ impl FiptModel {
         }
     }
 
-    /// The material field at unit-cube points (inference, batched, no autodiff). The encoding
+    /// The material field at unit-cube points (inference, batched, no autodiff), each point
+    /// with the part offset of its row (`PartMap::rows`; `rows` empty: no offsets). The encoding
     /// runs on the device when the table is there (`device_grid`), else on the host.
-    pub fn material(&self, x_unit: &[[f32; 3]]) -> MaterialValues {
+    pub fn material(&self, x_unit: &[[f32; 3]], rows: &[u32]) -> MaterialValues {
+        assert!(
+            rows.is_empty() || rows.len() == x_unit.len(),
+            "one part row per point"
+        );
         let mlp = self.nets.material.valid();
+        let offsets = match &self.nets.part_offsets {
+            Some(po) if !rows.is_empty() => Some(po.valid()),
+            _ => None,
+        };
         let tables = self.device_grid.as_ref().map(|t| t.valid());
         let dev = self.inference_device();
         let mut out = MaterialValues::default();
@@ -153,7 +188,7 @@ impl FiptModel {
         } else {
             INFER_CHUNK
         };
-        for chunk in x_unit.chunks(chunk_len) {
+        for (k, chunk) in x_unit.chunks(chunk_len).enumerate() {
             let n = chunk.len();
             let enc = match &tables {
                 Some(t) => {
@@ -162,7 +197,16 @@ impl FiptModel {
                 }
                 None => tensor2(self.grid.encode(chunk), [n, self.grid.output_dim()], &dev),
             };
-            let m = decode_material(mlp.forward(enc));
+            let mut raw = mlp.forward(enc);
+            if let Some(po) = &offsets {
+                let r: Vec<i64> = rows[k * chunk_len..k * chunk_len + n]
+                    .iter()
+                    .map(|&r| r as i64)
+                    .collect();
+                let r = Tensor::<1, Int>::from_data(TensorData::new(r, [n]), &dev);
+                raw = po.forward(raw, r);
+            }
+            let m = decode_material(raw);
             out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));
             out.sigma
                 .extend(m.sigma.try_into_vec_as::<f32>().expect("f32"));
@@ -186,11 +230,20 @@ impl FiptModel {
         v.0
     }
 
-    /// The material field at world points.
-    pub fn material_world(&self, x_world: &[glam::Vec3]) -> MaterialValues {
+    /// The material field at world points on triangles `tris` of the mesh (`tris` empty: no
+    /// part offsets).
+    pub fn material_world(&self, x_world: &[glam::Vec3], tris: &[u32]) -> MaterialValues {
         let sb = self.spec.scene_box;
         let xs: Vec<[f32; 3]> = x_world.iter().map(|&p| sb.to_unit(p).to_array()).collect();
-        self.material(&xs)
+        self.material(&xs, &self.part_rows(tris))
+    }
+
+    /// The part-offset row of each triangle of `tris` (empty without part offsets).
+    pub fn part_rows(&self, tris: &[u32]) -> Vec<u32> {
+        if self.nets.part_offsets.is_none() {
+            return Vec::new();
+        }
+        self.part_map.rows(tris)
     }
 
     /// The emission mask α at world points (inference, batched).
@@ -219,8 +272,9 @@ impl FiptModel {
     }
 
     /// Saves the model into `dir`: `model.json` (configs and scene box), the networks as a burn
-    /// record (`fields.bpk`) and the hash table (`hashgrid.bin` as f32 or `hashgrid.f16`), each
-    /// written to a temporary name first.
+    /// record (`fields.bpk`), the hash table (`hashgrid.bin` as f32 or `hashgrid.f16`) and,
+    /// with part offsets, their triangle map (`parts.bin`), each written to a temporary name
+    /// first.
     pub fn save(&self, dir: &Path, format: TableFormat) -> Result<(), String> {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         let spec = serde_json::to_string_pretty(&self.spec).map_err(|e| e.to_string())?;
@@ -232,6 +286,12 @@ impl FiptModel {
             .save_file(&tmp)
             .map_err(|e| format!("{}: {e:?}", tmp.display()))?;
         std::fs::rename(&tmp, dir.join(NETS_FILE)).map_err(|e| e.to_string())?;
+        if self.spec.parts > 0 {
+            crate::io::write_bytes_atomic(&dir.join(PARTS_FILE), &self.part_map.to_bytes())
+                .map_err(|e| e.to_string())?;
+        } else {
+            let _ = std::fs::remove_file(dir.join(PARTS_FILE));
+        }
         // Only one table file: a stale one of the other format would be ambiguous.
         let (name, other) = match format {
             TableFormat::F32 => (GRID_FILE, GRID_FILE_F16),
@@ -304,6 +364,13 @@ impl FiptModel {
         }
         if let Some(i) = table.iter().position(|v| !v.is_finite()) {
             return Err(format!("{}: entry {i} is not finite", grid_path.display()));
+        }
+        if model.spec.parts > 0 {
+            let path = dir.join(PARTS_FILE);
+            let bytes = std::fs::read(&path)
+                .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            model.part_map = PartMap::from_bytes(&bytes, model.spec.parts)
+                .map_err(|e| format!("{}: {e}", path.display()))?;
         }
         Ok(model)
     }

@@ -13,6 +13,7 @@ pub mod hashgrid_device;
 pub mod hashgrid_tensor;
 pub mod host_mlp;
 pub mod loss;
+pub mod part_offsets;
 pub mod pe;
 pub mod render;
 pub mod step;
@@ -22,6 +23,7 @@ pub use backend::BackendKind;
 pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};
 pub use fipt_model::{FiptModel, MaterialValues, ModelSpec, Nets, TableFormat};
 pub use hashgrid::{HashGrid, HashGridConfig};
+pub use part_offsets::{PartMap, PartOffsets};
 pub use step::{Batch, LossParts, TrainConfig, Trainer};
 
 #[cfg(test)]

@@ -87,6 +87,7 @@ pub fn pixel_store(views: usize) -> PixelStore {
         })
         .collect();
     let sb = fipt_core::scene::SceneBox::from_points(points.iter().map(|(p, _)| p));
+    let tris = points.iter().map(|&(_, t)| t as u32).collect();
     for (p, tri) in points {
         b.x_unit.push(sb.to_unit(p).to_array());
         b.x_world.push(p.to_array());
@@ -99,7 +100,11 @@ pub fn pixel_store(views: usize) -> PixelStore {
         b.seg.push(room.part_of(tri).unwrap_or(0) as i32);
     }
     let origin = (0..b.len() as u32).map(|i| (0, i)).collect();
-    PixelStore { pixels: b, origin }
+    PixelStore {
+        pixels: b,
+        origin,
+        tri: tris,
+    }
 }
 
 /// `n` points uniform by area on `mesh` with their triangles (deterministic in `seed`).

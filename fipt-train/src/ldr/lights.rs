@@ -203,7 +203,7 @@ pub fn solve_clipped(
         .collect();
 
     // The pixels of the solve: unclipped, not on an emitter, fitted rough dielectric.
-    let mat = tr.model.material(&store.pixels.x_unit);
+    let mat = tr.model.material(&store.pixels.x_unit, &store.pixels.part);
     let cand: Vec<usize> = (0..store.len())
         .filter(|&i| {
             let (k, p) = store.origin[i];

@@ -11,7 +11,7 @@ use crate::config::TrainSection;
 use crate::progress::progress_bar;
 use fipt_core::brdf::{factorised_render, reflectances};
 use fipt_core::model::step::{DeviceStore, SegMode, StepLoss};
-use fipt_core::model::{LossParts, TrainConfig, Trainer};
+use fipt_core::model::{LossParts, PartMap, TrainConfig, Trainer};
 use fipt_core::scene::SceneBox;
 use fipt_core::shading::ShadingLayout;
 use std::path::Path;
@@ -20,7 +20,7 @@ use std::path::Path;
 /// pixel, scattered back into per-view images of the sizes of `hits` (3 floats per pixel, zeros
 /// at misses).
 pub fn reflected(tr: &Trainer, store: &PixelStore, hits: &[fipt_bake::ViewHits]) -> Vec<Vec<f32>> {
-    let mat = tr.model.material(&store.pixels.x_unit);
+    let mat = tr.model.material(&store.pixels.x_unit, &store.pixels.part);
     let mut out: Vec<Vec<f32>> = hits.iter().map(|h| vec![0.0; 3 * h.num_pixels()]).collect();
     for (i, &(k, p)) in store.origin.iter().enumerate() {
         let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
@@ -52,6 +52,8 @@ pub struct TrainLog {
 pub struct FitPlan {
     pub cfg: TrainConfig,
     pub scene_box: SceneBox,
+    /// The part offsets' map (`pixels::part_map`; no parts: none).
+    pub parts: PartMap,
     pub mode: SegMode,
     pub schedule: TrainSection,
     pub seed: u64,
@@ -230,11 +232,12 @@ pub fn fit(
     let FitPlan {
         cfg,
         scene_box,
+        parts,
         mode,
         schedule,
         seed,
     } = plan;
-    let tr = Trainer::new(cfg, scene_box, device, seed);
+    let tr = Trainer::with_parts(cfg, scene_box, parts, device, seed);
     fit_more(tr, store, mode, &schedule, seed, show_progress)
 }
 

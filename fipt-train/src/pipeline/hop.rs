@@ -275,7 +275,7 @@ fn evaluate(
         .iter()
         .map(|s| {
             let b = store.batch(&s.idx);
-            let mat = model.material(&b.x_unit);
+            let mat = model.material(&b.x_unit, &b.part);
             let alpha = model.alpha(&b.x_world);
             let n = s.idx.len() as f64;
             let term = |i: usize, am: (glam::Vec3, f32, f32)| -> f64 {
@@ -334,7 +334,7 @@ fn evaluate(
                 (Vec::new(), f64::NAN)
             };
             let carried = with.carried.map(|prev| {
-                let pm = prev.material(&b.x_unit);
+                let pm = prev.material(&b.x_unit, &b.part);
                 let obj: f64 = pixels
                     .clone()
                     .map(|i| {
@@ -829,7 +829,7 @@ impl<'a> PatchSegments<'a> {
     fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
         let (idx, cubes) = self.segments.get(&id)?;
         let b = self.store.batch(idx);
-        let mat = model.material(&b.x_unit);
+        let mat = model.material(&b.x_unit, &b.part);
         let alpha = model.alpha(&b.x_world);
         let pixels: Vec<super::patches::PatchPixel> = (0..idx.len())
             .map(|i| super::patches::PatchPixel {
@@ -1205,7 +1205,10 @@ mod tests {
             DiffusePrior::NONE,
             Hypotheses::default(),
         );
-        let mat = |s: &SegmentSample| tr.model.material(&st.batch(&s.idx).x_unit);
+        let mat = |s: &SegmentSample| {
+            let b = st.batch(&s.idx);
+            tr.model.material(&b.x_unit, &b.part)
+        };
         for ((d, f), (s, w)) in data
             .segments
             .iter()

@@ -23,7 +23,7 @@ use super::bake;
 use super::context::RunContext;
 use super::extract;
 use super::fit::{self, FitPlan};
-use super::pixels::PixelStore;
+use super::pixels::{PixelStore, part_map};
 use super::rounds::FitSetup;
 use crate::ldr::lights::LightSolve;
 use anyhow::Result;
@@ -97,10 +97,18 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
     let (baked, _) = bake::bake_cached(ctx.out, &ctx.ds, &ctx.accel, &ctx.bake_cfg, ctx.progress())
         .map_err(|e| ctx.reword(e, "during the bake of the clipped photos (it restarts)"))?;
     let setup = FitSetup::new(ctx, &baked)?;
-    let store = PixelStore::gather(&ctx.ds.train, &baked, &setup.scene_box, setup.mode);
+    let mut store = PixelStore::gather(&ctx.ds.train, &baked, &setup.scene_box, setup.mode);
+    let parts = part_map(
+        &store,
+        ctx.ds.mesh.num_triangles(),
+        ctx.cfg.train.part_offsets,
+        setup.mode,
+    );
+    store.set_parts(&parts);
     let plan = FitPlan {
         cfg: setup.base_cfg(ctx, 0),
         scene_box: setup.scene_box,
+        parts,
         mode: setup.mode,
         schedule: ctx.cfg.train_for_round(0),
         seed: ctx.seeds.fit(0, false),

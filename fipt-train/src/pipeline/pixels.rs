@@ -8,9 +8,9 @@
 
 use super::bake::Baked;
 use fipt_bake::ViewHits;
-use fipt_core::model::Batch;
 use fipt_core::model::step::CAP_NONE;
 use fipt_core::model::step::SegMode;
+use fipt_core::model::{Batch, PartMap};
 use fipt_core::scene::{MapKind, SceneBox, Split};
 use fipt_core::shading::ShadingLayout;
 
@@ -20,6 +20,18 @@ pub struct PixelStore {
     pub pixels: Batch,
     /// (view, pixel) of each entry.
     pub origin: Vec<(u32, u32)>,
+    /// The triangle each entry's pixel-centre ray hit.
+    pub tri: Vec<u32>,
+}
+
+/// The part offsets' map (`train.part_offsets`, on with a segmentation loss): the rows of the
+/// majority labels of the triangles `store` hit, taken from the store as gathered (before any
+/// pixel leaves it), so that a resumed run makes the same map. Off: a map without parts.
+pub fn part_map(store: &PixelStore, num_triangles: usize, on: bool, mode: SegMode) -> PartMap {
+    if !on || mode == SegMode::None {
+        return PartMap::default();
+    }
+    PartMap::from_labels(&store.triangle_labels(num_triangles))
 }
 
 /// Which label map feeds the segmentation loss.
@@ -35,6 +47,7 @@ impl PixelStore {
     pub fn gather(train: &Split, baked: &Baked, sb: &SceneBox, mode: SegMode) -> Self {
         let mut b = Batch::default();
         let mut origin = Vec::new();
+        let mut tri = Vec::new();
         let labels: Vec<Option<Vec<i32>>> = train
             .views
             .iter()
@@ -62,9 +75,37 @@ impl PixelStore {
                     }
                 }
                 origin.push((k as u32, p as u32));
+                tri.push(h.tri[p] as u32);
             }
         }
-        Self { pixels: b, origin }
+        Self {
+            pixels: b,
+            origin,
+            tri,
+        }
+    }
+
+    /// Per triangle of a mesh of `num_triangles`, the majority segment label of the entries
+    /// that hit it (`segfuse`'s rule; −1 where none did).
+    pub fn triangle_labels(&self, num_triangles: usize) -> Vec<i32> {
+        let mut votes: Vec<std::collections::HashMap<i32, u32>> =
+            vec![Default::default(); num_triangles];
+        for (&t, &s) in self.tri.iter().zip(&self.pixels.seg) {
+            if s >= 0 {
+                *votes[t as usize].entry(s).or_default() += 1;
+            }
+        }
+        votes.iter().map(fipt_bake::segfuse::majority).collect()
+    }
+
+    /// Sets every entry's part-offset row (`Batch::part`) from its triangle's row in `map`
+    /// (a map without parts: none).
+    pub fn set_parts(&mut self, map: &PartMap) {
+        self.pixels.part = if map.parts > 0 {
+            map.rows(&self.tri)
+        } else {
+            Vec::new()
+        };
     }
 
     pub fn len(&self) -> usize {
@@ -97,6 +138,10 @@ impl PixelStore {
                 continue;
             }
             self.origin[n] = (k, p);
+            self.tri[n] = self.tri[i];
+            if !b.part.is_empty() {
+                b.part[n] = b.part[i];
+            }
             b.x_unit[n] = b.x_unit[i];
             b.x_world[n] = b.x_world[i];
             b.shadings.copy_within(i * d..(i + 1) * d, n * d);
@@ -109,6 +154,10 @@ impl PixelStore {
         }
         let gone = self.origin.len() - n;
         self.origin.truncate(n);
+        self.tri.truncate(n);
+        if !b.part.is_empty() {
+            b.part.truncate(n);
+        }
         b.x_unit.truncate(n);
         b.x_world.truncate(n);
         b.shadings.truncate(n * d);
@@ -130,6 +179,7 @@ impl PixelStore {
             gt: Vec::with_capacity(idx.len() * 3),
             seg: Vec::with_capacity(idx.len()),
             cap: Vec::new(),
+            part: Vec::new(),
         };
         for &i in idx {
             let i = i as usize;
@@ -139,6 +189,9 @@ impl PixelStore {
                 .extend_from_slice(ShadingLayout::pixel(&b.shadings, i));
             out.gt.extend_from_slice(&b.gt[3 * i..3 * i + 3]);
             out.seg.push(b.seg[i]);
+            if !b.part.is_empty() {
+                out.part.push(b.part[i]);
+            }
             if !b.cap.is_empty() {
                 out.cap.extend_from_slice(&b.cap[3 * i..3 * i + 3]);
             }
@@ -340,7 +393,15 @@ mod tests {
             b.cap.extend([f, CAP_NONE, f + 0.5]);
         }
         let origin: Vec<(u32, u32)> = (0..n as u32).map(|i| (i % 2, i)).collect();
-        let mut store = PixelStore { pixels: b, origin };
+        let tri: Vec<u32> = (0..n as u32).map(|i| 3 * i).collect();
+        let mut store = PixelStore {
+            pixels: b,
+            origin,
+            tri,
+        };
+        store.set_parts(&PartMap::from_labels(
+            &(0..3 * n as i32).map(|t| t % 4).collect::<Vec<_>>(),
+        ));
         let keep = |k: u32, p: u32| k == 0 || p == 7;
         let kept: Vec<u32> = (0..n as u32).filter(|&i| keep(i % 2, i)).collect();
         let want = store.batch(&kept);
@@ -355,6 +416,8 @@ mod tests {
         assert_eq!(got.x_world, want.x_world);
         assert_eq!(got.shadings, want.shadings);
         assert_eq!(got.gt, want.gt);
+        assert_eq!(got.part, want.part);
+        assert_eq!(store.tri, kept.iter().map(|&i| 3 * i).collect::<Vec<_>>());
         assert_eq!(got.seg, want.seg);
         assert_eq!(got.cap, want.cap);
     }

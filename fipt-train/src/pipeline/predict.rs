@@ -63,7 +63,8 @@ pub fn predict_view(
     let n = hits.num_pixels();
     let idx: Vec<usize> = (0..n).filter(|&p| hits.tri[p] >= 0).collect();
     let xs: Vec<Vec3> = idx.iter().map(|&p| hits.position[p]).collect();
-    let mat = model.material_world(&xs);
+    let tris: Vec<u32> = idx.iter().map(|&p| hits.tri[p] as u32).collect();
+    let mat = model.material_world(&xs, &tris);
     let mut m = ViewMaps {
         width: hits.width,
         height: hits.height,

@@ -96,7 +96,7 @@ pub fn refine(
     // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
     // always go to the learned source (black).
     let voxels = job.material_cache.then(|| {
-        let mv = model.material(&store.pixels.x_unit);
+        let mv = model.material(&store.pixels.x_unit, &store.pixels.part);
         let mats: Vec<SurfaceMaterial> = (0..store.len())
             .map(|i| SurfaceMaterial {
                 base_color: Vec3::from_slice(&mv.a[3 * i..3 * i + 3]),

@@ -16,7 +16,7 @@ use crate::pipeline::report::{RoundReport, RoundWork};
 use anyhow::{Context, Result};
 use fipt_bake::emitters::{self, Emitter};
 use fipt_core::model::step::SegMode;
-use fipt_core::model::{TrainConfig, Trainer};
+use fipt_core::model::{PartMap, TrainConfig, Trainer};
 use fipt_core::scene::{MapKind, SceneBox};
 use std::time::Instant;
 
@@ -35,6 +35,8 @@ pub struct FitSetup {
     pub device: burn::tensor::Device,
     pub footprint: f64,
     pub grid_levels: usize,
+    /// The part offsets' map (`pixels::part_map`), set once the store is gathered.
+    pub parts: PartMap,
     /// The last round (0 with oracle shadings, which are not refined).
     pub last_round: usize,
 }
@@ -53,6 +55,7 @@ impl FitSetup {
             device: cfg.backend.device().map_err(anyhow::Error::msg)?,
             footprint,
             grid_levels: cfg.train.grid.levels_for(footprint),
+            parts: PartMap::default(),
             last_round: if ctx.opts.oracle {
                 0
             } else {
@@ -406,9 +409,10 @@ impl Rounds {
                 (tr, None)
             }
             None => (
-                Trainer::new(
+                Trainer::with_parts(
                     base.clone(),
                     setup.scene_box,
+                    setup.parts.clone(),
                     &setup.device,
                     ctx.seeds.base(),
                 ),
@@ -516,14 +520,23 @@ pub fn run_rounds(
     baked: &mut Baked,
     ck: Checkpoints,
 ) -> Result<(FitSetup, Fitted)> {
-    let setup = FitSetup::new(ctx, baked)?;
+    let mut setup = FitSetup::new(ctx, baked)?;
     let mut rounds = Rounds::resume(ctx, &setup, ck);
     let mut store: Option<PixelStore> = None;
     for r in rounds.first..=setup.last_round {
         ctx.lap();
-        let st = store.get_or_insert_with(|| {
-            PixelStore::gather(&ctx.ds.train, baked, &setup.scene_box, setup.mode)
-        });
+        if store.is_none() {
+            let mut st = PixelStore::gather(&ctx.ds.train, baked, &setup.scene_box, setup.mode);
+            setup.parts = pixels::part_map(
+                &st,
+                ctx.ds.mesh.num_triangles(),
+                ctx.cfg.train.part_offsets,
+                setup.mode,
+            );
+            st.set_parts(&setup.parts);
+            store = Some(st);
+        }
+        let st = store.as_mut().context("the store is gathered")?;
         if r > 0 {
             rounds.rebuild_cache(ctx, baked);
             rounds.leave_out_near_emitters(ctx, baked, st);

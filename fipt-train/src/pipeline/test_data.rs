@@ -17,8 +17,10 @@ pub(crate) fn store(seg: &[i32]) -> PixelStore {
             gt: vec![0.0; 3 * n],
             seg: seg.to_vec(),
             cap: Vec::new(),
+            part: Vec::new(),
         },
         origin: (0..n as u32).map(|i| (0, i)).collect(),
+        tri: vec![0; n],
     }
 }
 

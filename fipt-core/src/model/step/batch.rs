@@ -25,6 +25,9 @@ pub struct Batch {
     pub gt: Vec<f32>,
     /// Segment id per pixel (part or semantic label).
     pub seg: Vec<i32>,
+    /// Row of the part offsets per pixel (`PartMap::rows` of its triangle); empty without
+    /// them.
+    pub part: Vec<u32>,
     /// LDR photos only, 3 per pixel: the clip level of a clipped channel (where `gt` is only a
     /// lower bound), `CAP_NONE` elsewhere; empty for HDR photos.
     pub cap: Vec<f32>,
@@ -56,6 +59,8 @@ pub struct DeviceStore {
     pub n_seg: usize,
     /// `Batch::cap` where the photos are LDR.
     pub cap: Option<Tensor<2>>,
+    /// `Batch::part` where the model has part offsets.
+    pub part: Option<Tensor<1, Int>>,
 }
 
 impl DeviceStore {
@@ -71,6 +76,10 @@ impl DeviceStore {
             seg: index_tensor(&seg, device),
             n_seg,
             cap: (!pixels.cap.is_empty()).then(|| upload2(pixels.cap.clone(), [n, 3], device)),
+            part: (!pixels.part.is_empty()).then(|| {
+                let rows: Vec<i64> = pixels.part.iter().map(|&r| r as i64).collect();
+                index_tensor(&rows, device)
+            }),
         }
     }
 
@@ -88,6 +97,10 @@ impl DeviceStore {
             seg: select_int_dev(self.seg.clone(), i.clone()),
             n_seg: self.n_seg,
             cap: self.cap.as_ref().map(rows),
+            part: self
+                .part
+                .as_ref()
+                .map(|p| select_int_dev(p.clone(), i.clone())),
         }
     }
 

@@ -30,6 +30,10 @@ impl Trainer {
     ) -> (Tensor<1>, Tensor<1>) {
         let dev = self.device.clone();
         let n = px.t.len();
+        let raw_mat = match (&self.model.nets.part_offsets, &px.t.part) {
+            (Some(po), Some(rows)) => po.forward(raw_mat, rows.clone()),
+            _ => raw_mat,
+        };
         let mat = decode_material(raw_mat.clone());
         let (kd, ks) = reflectances(mat.a.clone(), mat.metallic.clone());
         let sh = Shadings::from_packed(px.t.shadings.clone());

@@ -210,6 +210,12 @@ impl Trainer {
                         .backward(&h.pe, &h.emission_tape, &download(g), false);
                     register_host_grads(&nets.emission.all_layers(), &ge, &mut gp, &plain);
                 }
+                // The part offsets are burn parameters on every path.
+                if let Some(po) = &nets.part_offsets
+                    && let Some(g) = po.table.val().grad(&grads)
+                {
+                    gp.register(po.table.id, g);
+                }
                 Backward {
                     grads,
                     enc: Some((d_enc, xs)),

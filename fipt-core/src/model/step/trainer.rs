@@ -11,6 +11,7 @@ use super::losses::{LossParts, StepLoss};
 use crate::model::fipt_model::{FiptModel, ModelSpec};
 use crate::model::hashgrid::{TableAdam, TableGrad};
 use crate::model::hashgrid_device::GridTables;
+use crate::model::part_offsets::PartMap;
 use crate::model::transfer;
 use crate::scene::SceneBox;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
@@ -100,14 +101,28 @@ impl Trainer {
     /// A fresh model over `scene_box` on `device` (a plain device; autodiff is added here),
     /// seeded by `seed`.
     pub fn new(cfg: TrainConfig, scene_box: SceneBox, device: &Device, seed: u64) -> Self {
+        Self::with_parts(cfg, scene_box, PartMap::default(), device, seed)
+    }
+
+    /// As `new`, with part offsets (`part_offsets`) over the parts of `parts` where it has
+    /// any: the batches then carry each pixel's row (`Batch::part`).
+    pub fn with_parts(
+        cfg: TrainConfig,
+        scene_box: SceneBox,
+        parts: PartMap,
+        device: &Device,
+        seed: u64,
+    ) -> Self {
         device.seed(seed);
         let ad = device.clone().autodiff();
         let spec = ModelSpec {
             material: cfg.material.clone(),
             emission: cfg.emission.clone(),
             scene_box,
+            parts: parts.parts,
         };
-        let model = FiptModel::init(spec, &ad, seed);
+        let mut model = FiptModel::init(spec, &ad, seed);
+        model.part_map = parts;
         Self::assemble(cfg, ad, model, seed, None, None)
     }
 
