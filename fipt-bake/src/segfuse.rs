@@ -20,20 +20,32 @@ pub fn fuse_labels(
     ignore: Option<i32>,
 ) -> Vec<i32> {
     assert_eq!(hits.len(), labels.len());
-    let mut votes: Vec<HashMap<i32, u32>> = vec![HashMap::new(); num_triangles];
-    for (h, l) in hits.iter().zip(labels) {
+    let votes = hits.iter().zip(labels).flat_map(|(h, l)| {
         assert_eq!(h.tri.len(), l.len());
-        for (&tri, &lab) in h.tri.iter().zip(l) {
-            if tri >= 0 && Some(lab) != ignore && lab >= 0 {
-                *votes[tri as usize].entry(lab).or_default() += 1;
-            }
+        h.tri
+            .iter()
+            .zip(l)
+            .filter(|&(&tri, &lab)| tri >= 0 && Some(lab) != ignore)
+            .map(|(&tri, &lab)| (tri as u32, lab))
+    });
+    fuse_votes(num_triangles, votes)
+}
+
+/// Per-triangle majority vote over (triangle, label) pairs, e.g. one per training pixel.
+/// Negative labels do not vote; ties go to the smallest label; triangles without votes get
+/// `UNLABELLED`.
+pub fn fuse_votes(num_triangles: usize, votes: impl IntoIterator<Item = (u32, i32)>) -> Vec<i32> {
+    let mut count: Vec<HashMap<i32, u32>> = vec![HashMap::new(); num_triangles];
+    for (tri, lab) in votes {
+        if lab >= 0 {
+            *count[tri as usize].entry(lab).or_default() += 1;
         }
     }
-    votes.iter().map(majority).collect()
+    count.iter().map(majority).collect()
 }
 
 /// The label with the most votes, the smallest on a tie; `UNLABELLED` without votes.
-pub fn majority(votes: &HashMap<i32, u32>) -> i32 {
+fn majority(votes: &HashMap<i32, u32>) -> i32 {
     votes
         .iter()
         .max_by(|a, b| a.1.cmp(b.1).then(b.0.cmp(a.0)))

@@ -12,7 +12,7 @@ use super::hashgrid_device::{self, GridTables};
 use super::part_offsets::{PartMap, PartOffsets};
 use crate::scene::SceneBox;
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
 use std::path::Path;
 
 /// The optimised networks (everything but the host hash table).
@@ -203,8 +203,7 @@ impl FiptModel {
                     .iter()
                     .map(|&r| r as i64)
                     .collect();
-                let r = Tensor::<1, Int>::from_data(TensorData::new(r, [n]), &dev);
-                raw = po.forward(raw, r);
+                raw = po.forward(raw, super::gather::index_tensor(&r, &dev));
             }
             let m = decode_material(raw);
             out.a.extend(m.a.try_into_vec_as::<f32>().expect("f32"));

@@ -39,11 +39,6 @@ impl PartOffsets {
         }
     }
 
-    /// Rows of the table.
-    pub fn parts(&self) -> usize {
-        self.table.val().dims()[0]
-    }
-
     /// raw [N,5] + GAIN · table[rows] [N,5]. `rows` [N] index the table; the row `parts()`
     /// (the "no part" row of `PartMap`) adds zero and is never trained.
     pub fn forward(&self, raw: Tensor<2>, rows: Tensor<1, Int>) -> Tensor<2> {

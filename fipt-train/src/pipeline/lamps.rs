@@ -23,7 +23,6 @@ use super::bake;
 use super::context::RunContext;
 use super::extract;
 use super::fit::{self, FitPlan};
-use super::pixels::{PixelStore, part_map};
 use super::rounds::FitSetup;
 use crate::ldr::lights::LightSolve;
 use anyhow::Result;
@@ -97,14 +96,7 @@ fn solve(ctx: &mut RunContext) -> Result<LightSolve> {
     let (baked, _) = bake::bake_cached(ctx.out, &ctx.ds, &ctx.accel, &ctx.bake_cfg, ctx.progress())
         .map_err(|e| ctx.reword(e, "during the bake of the clipped photos (it restarts)"))?;
     let setup = FitSetup::new(ctx, &baked)?;
-    let mut store = PixelStore::gather(&ctx.ds.train, &baked, &setup.scene_box, setup.mode);
-    let parts = part_map(
-        &store,
-        ctx.ds.mesh.num_triangles(),
-        ctx.cfg.train.part_offsets,
-        setup.mode,
-    );
-    store.set_parts(&parts);
+    let (store, parts) = setup.gather_store(ctx, &baked);
     let plan = FitPlan {
         cfg: setup.base_cfg(ctx, 0),
         scene_box: setup.scene_box,

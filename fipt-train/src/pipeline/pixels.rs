@@ -88,14 +88,12 @@ impl PixelStore {
     /// Per triangle of a mesh of `num_triangles`, the majority segment label of the entries
     /// that hit it (`segfuse`'s rule; −1 where none did).
     pub fn triangle_labels(&self, num_triangles: usize) -> Vec<i32> {
-        let mut votes: Vec<std::collections::HashMap<i32, u32>> =
-            vec![Default::default(); num_triangles];
-        for (&t, &s) in self.tri.iter().zip(&self.pixels.seg) {
-            if s >= 0 {
-                *votes[t as usize].entry(s).or_default() += 1;
-            }
-        }
-        votes.iter().map(fipt_bake::segfuse::majority).collect()
+        let votes = self
+            .tri
+            .iter()
+            .copied()
+            .zip(self.pixels.seg.iter().copied());
+        fipt_bake::segfuse::fuse_votes(num_triangles, votes)
     }
 
     /// Sets every entry's part-offset row (`Batch::part`) from its triangle's row in `map`

@@ -64,6 +64,20 @@ impl FitSetup {
         })
     }
 
+    /// The stage-2 pixel store of `baked` with each entry's part-offset row, and the part map
+    /// (`pixels::part_map`; without `train.part_offsets`, a map without parts).
+    pub fn gather_store(&self, ctx: &RunContext, baked: &Baked) -> (PixelStore, PartMap) {
+        let mut st = PixelStore::gather(&ctx.ds.train, baked, &self.scene_box, self.mode);
+        let parts = pixels::part_map(
+            &st,
+            ctx.ds.mesh.num_triangles(),
+            ctx.cfg.train.part_offsets,
+            self.mode,
+        );
+        st.set_parts(&parts);
+        (st, parts)
+    }
+
     /// Round `r`'s trainer config, before its schedule sets the rate and λ_d of each step.
     pub fn base_cfg(&self, ctx: &RunContext, r: usize) -> TrainConfig {
         ctx.cfg
@@ -526,14 +540,8 @@ pub fn run_rounds(
     for r in rounds.first..=setup.last_round {
         ctx.lap();
         if store.is_none() {
-            let mut st = PixelStore::gather(&ctx.ds.train, baked, &setup.scene_box, setup.mode);
-            setup.parts = pixels::part_map(
-                &st,
-                ctx.ds.mesh.num_triangles(),
-                ctx.cfg.train.part_offsets,
-                setup.mode,
-            );
-            st.set_parts(&setup.parts);
+            let (st, parts) = setup.gather_store(ctx, baked);
+            setup.parts = parts;
             store = Some(st);
         }
         let st = store.as_mut().context("the store is gathered")?;
