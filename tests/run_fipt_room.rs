@@ -695,13 +695,13 @@ fn constant_predictor_scores() -> ([f64; 3], f32) {
 const STOP_VIEWS: usize = 8;
 
 /// The steps between the stopped runs' checkpoints.
-const STOP_EVERY: usize = 50;
+const STOP_EVERY: usize = 25;
 
-/// `common::small_fast_config` for the stopped runs: fits of 400 steps saved every
+/// `common::small_fast_config` for the stopped runs: fits of 200 steps saved every
 /// `STOP_EVERY` steps, fewer samples in refinement, the albedo maps and the re-renders. Every
 /// stage and round of the fast config still runs, the hop included.
 fn stops_config(dir: &Path) -> PathBuf {
-    let mut c = common::small_fast_config(400);
+    let mut c = common::small_fast_config(200);
     c["checkpoint"]["every_steps"] = STOP_EVERY.into();
     let paths = &mut c["refine"]["paths"];
     paths["samples"] = serde_json::json!({"diffuse": 8, "specular": [4, 4, 4, 4, 4, 4]});
