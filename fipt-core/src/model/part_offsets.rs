@@ -39,8 +39,8 @@ impl PartOffsets {
         }
     }
 
-    /// raw [N,5] + GAIN · table[rows] [N,5]. `rows` [N] index the table; the row `parts()`
-    /// (the "no part" row of `PartMap`) adds zero and is never trained.
+    /// raw [N,5] + GAIN · table[rows] [N,5]. `rows` [N] index the table; the row one past its
+    /// last (`PartMap::parts`, the "no part" row) adds zero and is never trained.
     pub fn forward(&self, raw: Tensor<2>, rows: Tensor<1, Int>) -> Tensor<2> {
         let t = self.table.val().mul_scalar(GAIN);
         let none = Tensor::<2>::zeros([1, COLS], &t.device());
