@@ -846,6 +846,7 @@ fn build_model(root: &Path) -> (PathBuf, Manifest) {
             .with_skip(1),
         scene_box: sb,
         parts: 0,
+        part_columns: Default::default(),
     };
     let device = burn::tensor::Device::flex();
     let model = FiptModel::init(spec, &device, 5);

@@ -6,7 +6,9 @@ use burn::tensor::Device;
 use fipt_core::model::step::SegMode;
 mod common;
 use common::batch;
-use fipt_core::model::{Batch, HashGridConfig, MaterialFieldConfig, PartMap, TrainConfig, Trainer};
+use fipt_core::model::{
+    Batch, HashGridConfig, MaterialFieldConfig, PartColumns, PartMap, TrainConfig, Trainer,
+};
 use fipt_core::scene::SceneBox;
 use std::path::PathBuf;
 
@@ -32,21 +34,28 @@ fn params(t: &Trainer) -> (Vec<Vec<f32>>, Vec<f32>) {
 
 #[test]
 fn restored_fit_continues_bit_identically() {
-    restore_and_continue(false, false);
+    restore_and_continue(false, false, PartColumns::All);
 }
 
 /// The same with the table resident on the device: its burn record (parameter ids included)
 /// and burn's Adam state of it are saved and restored.
 #[test]
 fn restored_device_grid_fit_continues_bit_identically() {
-    restore_and_continue(true, false);
+    restore_and_continue(true, false, PartColumns::All);
 }
 
 /// The same with part offsets (`part_offsets`): their table, its Adam state and the triangle
 /// map (`parts.bin`) are saved and restored.
 #[test]
 fn restored_fit_with_part_offsets_continues_bit_identically() {
-    restore_and_continue(false, true);
+    restore_and_continue(false, true, PartColumns::All);
+}
+
+/// The same with offsets of σ alone: the saved model names its columns (`model.json`), so the
+/// restored table has one column a part.
+#[test]
+fn restored_fit_with_roughness_offsets_continues_bit_identically() {
+    restore_and_continue(false, true, PartColumns::Roughness);
 }
 
 /// A map of five triangles over two labelled parts, one triangle unlabelled.
@@ -54,8 +63,12 @@ fn part_map() -> PartMap {
     PartMap::from_labels(&[4, 9, -1, 9, 4])
 }
 
-fn restore_and_continue(device_grid: bool, parts: bool) {
-    let config = || config().with_device_grid(device_grid);
+fn restore_and_continue(device_grid: bool, parts: bool, columns: PartColumns) {
+    let config = || {
+        config()
+            .with_device_grid(device_grid)
+            .with_part_columns(columns)
+    };
     let dev = Device::flex();
     let map = if parts {
         part_map()
@@ -83,7 +96,7 @@ fn restore_and_continue(device_grid: bool, parts: bool) {
     for b in &batches[..3] {
         first.step(b, SegMode::Semantic);
     }
-    let dir = tmp(&format!("ok-{device_grid}-{parts}"));
+    let dir = tmp(&format!("ok-{device_grid}-{parts}-{columns:?}"));
     first.save_state(&dir).unwrap();
     drop(first);
     let mut resumed = Trainer::restore(config(), &dev, 5, &dir).unwrap();
@@ -98,6 +111,7 @@ fn restore_and_continue(device_grid: bool, parts: bool) {
     if parts {
         // The offsets are the last parameters; they moved away from zero.
         let offsets = nets_a.last().unwrap();
+        assert_eq!(offsets.len(), map.parts * columns.range().len());
         assert!(
             offsets.iter().any(|&v| v != 0.0),
             "part offsets never trained"

@@ -11,7 +11,7 @@ use fipt_bake::integrators::refine::RefineConfig;
 use fipt_core::model::hashgrid::{MaxResolution, ResolutionKeyword};
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{
-    BackendKind, EmissionMaskConfig, HashGridConfig, MaterialFieldConfig, TrainConfig,
+    BackendKind, EmissionMaskConfig, HashGridConfig, MaterialFieldConfig, PartColumns, TrainConfig,
 };
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -273,6 +273,9 @@ pub struct TrainSection {
     /// at every point of the triangles the segment covers (`fipt_core::model::part_offsets`;
     /// false: none, the reference). Needs part or semantic labels.
     pub part_offsets: bool,
+    /// Which logits the part offsets move: `all` (a, σ, m), `roughness_metallic` or
+    /// `roughness`.
+    pub part_offset_columns: PartColumns,
     /// Where the hash grid lives (`auto`: on the device for wgpu, on the host for the CPU
     /// backends).
     pub grid_place: GridPlace,
@@ -317,6 +320,7 @@ impl Default for TrainSection {
             emission_depth: 6,
             emission_width: 128,
             part_offsets: false,
+            part_offset_columns: PartColumns::All,
             grid_place: GridPlace::Auto,
             hop: Some(HopConfig::default()),
         }
@@ -478,6 +482,7 @@ impl TrainSection {
     pub fn model_config(&self, levels: usize, backend: BackendKind) -> TrainConfig {
         TrainConfig::new()
             .with_device_grid(self.grid_place.on_device(backend))
+            .with_part_columns(self.part_offset_columns)
             .with_lr(self.lr)
             .with_lambda_e(self.lambda_e)
             .with_lambda_d(self.lambda_d)

@@ -185,8 +185,8 @@ impl MaterialFieldConfig {
 
 /// The material head's output columns: base colour, roughness, metallic.
 const A_COLS: std::ops::Range<usize> = 0..3;
-const SIGMA_COL: usize = 3;
-const METALLIC_COL: usize = 4;
+pub(crate) const SIGMA_COL: usize = 3;
+pub(crate) const METALLIC_COL: usize = 4;
 
 /// Eq. 14 (material head): sigmoid outputs → a = s[0..3], σ = 0.02 + 0.98·s[3], m = s[4].
 pub fn decode_material(raw: Tensor<2>) -> Material {

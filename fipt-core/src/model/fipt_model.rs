@@ -9,7 +9,7 @@ use super::fields::{
 };
 use super::hashgrid::HashGrid;
 use super::hashgrid_device::{self, GridTables};
-use super::part_offsets::{PartMap, PartOffsets};
+use super::part_offsets::{PartColumns, PartMap, PartOffsets};
 use crate::scene::SceneBox;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -34,10 +34,17 @@ pub struct ModelSpec {
     /// Rows of the per-part offset table (`part_offsets`; 0: none, the reference's field).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub parts: usize,
+    /// The logits the part offsets move (absent: all five, as models saved before the key).
+    #[serde(default, skip_serializing_if = "is_all")]
+    pub part_columns: PartColumns,
 }
 
 fn is_zero(n: &usize) -> bool {
     *n == 0
+}
+
+fn is_all(c: &PartColumns) -> bool {
+    *c == PartColumns::All
 }
 
 impl ModelSpec {
@@ -124,7 +131,8 @@ impl FiptModel {
     pub fn init(spec: ModelSpec, device: &Device, seed: u64) -> Self {
         let field = spec.material.init(device, seed);
         let emission = spec.emission.init(device, seed);
-        let part_offsets = (spec.parts > 0).then(|| PartOffsets::zeros(spec.parts, device));
+        let part_offsets =
+            (spec.parts > 0).then(|| PartOffsets::zeros(spec.parts, spec.part_columns, device));
         let part_map = PartMap {
             tri_row: Vec::new(),
             parts: spec.parts,

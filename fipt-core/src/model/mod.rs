@@ -23,7 +23,7 @@ pub use backend::BackendKind;
 pub use fields::{EmissionMask, EmissionMaskConfig, MaterialField, MaterialFieldConfig};
 pub use fipt_model::{FiptModel, MaterialValues, ModelSpec, Nets, TableFormat};
 pub use hashgrid::{HashGrid, HashGridConfig};
-pub use part_offsets::{PartMap, PartOffsets};
+pub use part_offsets::{PartColumns, PartMap, PartOffsets};
 pub use step::{Batch, LossParts, TrainConfig, Trainer};
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Per-part offsets of the material head's logits (`train.part_offsets`, a departure from the
-//! reference): a learned row of five logits per segment of the training labels, added to the
-//! material MLP's raw output at every point of that segment's triangles.
+//! reference): a learned row of logits per segment of the training labels (all five, or σ and
+//! m, or σ alone: `PartColumns`), added to the material MLP's raw output at every point of that
+//! segment's triangles.
 //!
 //! The hash grid cannot tell apart two parts that share its cells: a thin metal table leg takes
 //! in the floor around it. An offset per part lets such a part differ from its neighbours by a
@@ -11,12 +12,38 @@
 //! form. Must not touch: where the labels come from (the pipeline fuses them per triangle), the
 //! losses.
 
+use super::fields::{METALLIC_COL, SIGMA_COL};
 use super::gather::select_rows_dev;
 use burn::module::{Module, Param};
 use burn::tensor::{Device, Int, Tensor};
+use std::ops::Range;
 
 /// Columns of the material head (`fields::decode_material`: a, σ, m).
 const COLS: usize = 5;
+
+/// Which of the material head's logits the offsets move (`train.part_offset_columns`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PartColumns {
+    /// Base colour, σ and m: all five.
+    #[default]
+    All,
+    /// σ and m: a part's base colour comes from the field alone.
+    RoughnessMetallic,
+    /// σ alone.
+    Roughness,
+}
+
+impl PartColumns {
+    /// The columns of the material head's raw output that the table's columns move, in order.
+    pub fn range(self) -> Range<usize> {
+        match self {
+            Self::All => 0..COLS,
+            Self::RoughnessMetallic => SIGMA_COL..METALLIC_COL + 1,
+            Self::Roughness => SIGMA_COL..SIGMA_COL + 1,
+        }
+    }
+}
 
 /// The offsets are `GAIN` × the table. Adam moves a parameter by about the learning rate per
 /// step whatever its gradient's scale, so a bare table would travel about 1.3 logits over a
@@ -25,26 +52,47 @@ const COLS: usize = 5;
 /// table entries through the MLP's gain.
 pub const GAIN: f32 = 10.0;
 
-/// The learned offsets: `GAIN` × `table` [parts, 5], added to the material head's raw output.
+/// The learned offsets: `GAIN` × `table` [parts, k], added to the k columns of the material
+/// head's raw output that start at `first` (`PartColumns::range`).
 #[derive(Module, Debug)]
 pub struct PartOffsets {
     pub table: Param<Tensor<2>>,
+    /// The first column of the raw output that the table's first column moves.
+    pub first: usize,
 }
 
 impl PartOffsets {
-    /// `parts` rows of zeros on `device`.
-    pub fn zeros(parts: usize, device: &Device) -> Self {
+    /// `parts` rows of zeros over `columns`, on `device`.
+    pub fn zeros(parts: usize, columns: PartColumns, device: &Device) -> Self {
+        let r = columns.range();
         Self {
-            table: Param::from_tensor(Tensor::zeros([parts, COLS], device)),
+            table: Param::from_tensor(Tensor::zeros([parts, r.len()], device)),
+            first: r.start,
         }
     }
 
-    /// raw [N,5] + GAIN · table[rows] [N,5]. `rows` [N] index the table; the row one past its
-    /// last (`PartMap::parts`, the "no part" row) adds zero and is never trained.
+    /// raw [N,5] + GAIN · table[rows] [N,k], placed at columns `first..first + k` (the others
+    /// get zero). `rows` [N] index the table; the row one past its last (`PartMap::parts`, the
+    /// "no part" row) adds zero and is never trained.
     pub fn forward(&self, raw: Tensor<2>, rows: Tensor<1, Int>) -> Tensor<2> {
         let t = self.table.val().mul_scalar(GAIN);
-        let none = Tensor::<2>::zeros([1, COLS], &t.device());
-        raw + select_rows_dev(Tensor::cat(vec![t, none], 0), rows)
+        let dev = t.device();
+        let [_, k] = t.dims();
+        let [n, _] = raw.dims();
+        let none = Tensor::<2>::zeros([1, k], &dev);
+        let off = select_rows_dev(Tensor::cat(vec![t, none], 0), rows);
+        if k == COLS {
+            return raw + off;
+        }
+        let mut cols = Vec::with_capacity(3);
+        if self.first > 0 {
+            cols.push(Tensor::<2>::zeros([n, self.first], &dev));
+        }
+        cols.push(off);
+        if self.first + k < COLS {
+            cols.push(Tensor::<2>::zeros([n, COLS - self.first - k], &dev));
+        }
+        raw + Tensor::cat(cols, 1)
     }
 }
 
@@ -137,7 +185,7 @@ mod tests {
     #[test]
     fn offsets_add_their_row_and_gradients_count_points() {
         let dev = Device::flex().autodiff();
-        let mut po = PartOffsets::zeros(2, &dev);
+        let mut po = PartOffsets::zeros(2, PartColumns::All, &dev);
         let vals: Vec<f32> = (0..10).map(|i| i as f32).collect();
         po.table = Param::from_tensor(Tensor::from_data(TensorData::new(vals, [2, 5]), &dev));
         let raw = Tensor::<2>::ones([4, 5], &dev);
@@ -153,5 +201,47 @@ mod tests {
         let g = po.table.val().grad(&grads).unwrap();
         let g = g.try_into_vec_as::<f32>().unwrap();
         assert_eq!(g, [vec![GAIN; 5], vec![2.0 * GAIN; 5]].concat());
+    }
+
+    /// Offsets over σ and m move columns 3 and 4 alone; the base colour's columns get neither
+    /// an offset nor a path back to the table.
+    #[test]
+    fn column_subsets_move_only_their_columns() {
+        let dev = Device::flex().autodiff();
+        for (cols, moved) in [
+            (PartColumns::RoughnessMetallic, 3..5),
+            (PartColumns::Roughness, 3..4),
+        ] {
+            let mut po = PartOffsets::zeros(2, cols, &dev);
+            let k = moved.len();
+            let vals: Vec<f32> = (0..2 * k).map(|i| 1.0 + i as f32).collect();
+            po.table = Param::from_tensor(Tensor::from_data(TensorData::new(vals, [2, k]), &dev));
+            let raw = Tensor::<2>::zeros([3, 5], &dev);
+            let rows = Tensor::<1, Int>::from_data(TensorData::new(vec![1i64, 2, 0], [3]), &dev);
+            let out = po.forward(raw, rows);
+            let v = out.clone().try_into_vec_as::<f32>().unwrap();
+            for (p, row) in [(0, Some(1)), (1, None), (2, Some(0))] {
+                for c in 0..5 {
+                    let want = match row {
+                        Some(r) if moved.contains(&c) => {
+                            GAIN * (1 + r * k + c - moved.start) as f32
+                        }
+                        _ => 0.0,
+                    };
+                    assert_eq!(v[5 * p + c], want, "{cols:?}: point {p}, column {c}");
+                }
+            }
+            // Weighting each column by its index: row r's gradient is GAIN · column index,
+            // once for each point that reads it.
+            let w: Vec<f32> = (0..15).map(|i| (i % 5) as f32).collect();
+            let w = Tensor::<2>::from_data(TensorData::new(w, [3, 5]), &dev);
+            let grads = (out * w).sum().backward();
+            let g = po.table.val().grad(&grads).unwrap();
+            let g = g.try_into_vec_as::<f32>().unwrap();
+            let want: Vec<f32> = (0..2)
+                .flat_map(|_| moved.clone().map(|c| GAIN * c as f32))
+                .collect();
+            assert_eq!(g, want, "{cols:?}");
+        }
     }
 }

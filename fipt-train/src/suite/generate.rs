@@ -18,7 +18,7 @@ use fipt_core::scene::meta::{NewEmitter, Relight};
 pub enum SceneSize {
     /// 160×120, 30–60 train views, 8 val views, 512 spp.
     Full,
-    /// 96×72, 16 train views, 4 val views, 1024 spp (the CI test renders it at 256 with `--spp`).
+    /// 96×72, 16 train views, 4 val views, 1024 spp (the CI test renders it at 128 with `--spp`).
     Small,
 }
 

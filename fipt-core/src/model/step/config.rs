@@ -4,6 +4,7 @@
 //! Owns: `TrainConfig`, `SegMode`. Must not touch: the step itself, tensors, files.
 
 use crate::model::fields::{EmissionMaskConfig, MaterialFieldConfig};
+use crate::model::part_offsets::PartColumns;
 use burn::config::Config;
 
 /// Which segmentation loss to use.
@@ -74,4 +75,7 @@ pub struct TrainConfig {
     /// (`host_mlp`) rather than as burn graph ops; the same step within float rounding.
     #[config(default = true)]
     pub host_nets: bool,
+    /// The logits the part offsets move, where the trainer has them (`Trainer::with_parts`).
+    #[config(default = "PartColumns::All")]
+    pub part_columns: PartColumns,
 }

@@ -120,6 +120,7 @@ impl Trainer {
             emission: cfg.emission.clone(),
             scene_box,
             parts: parts.parts,
+            part_columns: cfg.part_columns,
         };
         let mut model = FiptModel::init(spec, &ad, seed);
         model.part_map = parts;
