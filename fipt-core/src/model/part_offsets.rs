@@ -15,6 +15,7 @@
 use super::fields::{METALLIC_COL, SIGMA_COL};
 use super::gather::select_rows_dev;
 use burn::module::{Module, Param};
+use burn::tensor::ops::PadMode;
 use burn::tensor::{Device, Int, Tensor};
 use std::ops::Range;
 
@@ -73,26 +74,16 @@ impl PartOffsets {
 
     /// raw [N,5] + GAIN · table[rows] [N,k], placed at columns `first..first + k` (the others
     /// get zero). `rows` [N] index the table; the row one past its last (`PartMap::parts`, the
-    /// "no part" row) adds zero and is never trained.
+    /// "no part" row) adds zero and is never trained. The table is widened to the five columns,
+    /// and given that zero row, before the gather: [parts + 1, 5], not [N, 5].
     pub fn forward(&self, raw: Tensor<2>, rows: Tensor<1, Int>) -> Tensor<2> {
         let t = self.table.val().mul_scalar(GAIN);
-        let dev = t.device();
         let [_, k] = t.dims();
-        let [n, _] = raw.dims();
-        let none = Tensor::<2>::zeros([1, k], &dev);
-        let off = select_rows_dev(Tensor::cat(vec![t, none], 0), rows);
-        if k == COLS {
-            return raw + off;
-        }
-        let mut cols = Vec::with_capacity(3);
-        if self.first > 0 {
-            cols.push(Tensor::<2>::zeros([n, self.first], &dev));
-        }
-        cols.push(off);
-        if self.first + k < COLS {
-            cols.push(Tensor::<2>::zeros([n, COLS - self.first - k], &dev));
-        }
-        raw + Tensor::cat(cols, 1)
+        let wide = t.pad(
+            [(0, 1), (self.first, COLS - self.first - k)],
+            PadMode::Constant(0.0),
+        );
+        raw + select_rows_dev(wide, rows)
     }
 }
 
