@@ -49,6 +49,9 @@ pub struct RefineSection {
     /// Weight of Eq. 17's m term in the fits on refined shadings (None: the same λ_d as its σ
     /// term, the reference).
     pub lambda_m: Option<f32>,
+    /// The segments `lambda_m` weighs: all of them, or only those the previous round left
+    /// dielectric (`MetalPriorOn`).
+    pub lambda_m_on: MetalPriorOn,
     /// The fits on refined shadings (and the refinement's material cache) leave out the pixels
     /// within this many pixels of one that shows an extracted emitter (0: none, the
     /// reference's); `pipeline::pixels::near_emitters`.
@@ -61,6 +64,18 @@ pub struct RefineSection {
     pub emitter_pixels: bool,
     /// The path-traced estimators.
     pub paths: RefineConfig,
+}
+
+/// Which segments `refine.lambda_m` weighs in a refined round's fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MetalPriorOn {
+    /// Every pixel.
+    #[default]
+    All,
+    /// The pixels of the segments whose mean m the previous round's model left below 0.5; the
+    /// others keep the round's λ_d on m, so that a metal found before is not priced out.
+    Dielectrics,
 }
 
 impl Default for RefineSection {
@@ -76,6 +91,7 @@ impl Default for RefineSection {
             lambda_d: Some(1e-4),
             lambda_d_warmup: None,
             lambda_m: None,
+            lambda_m_on: MetalPriorOn::All,
             // The pixels next to the emitters left out (the reference keeps every pixel);
             // `docs/departures/emitter-margin.md`.
             emitter_margin: 1,
@@ -1076,6 +1092,13 @@ mod tests {
         let c = Config::from_json(r#"{"refine": {"lambda_d": null, "lambda_m": 1e-3}}"#).unwrap();
         assert!((c.metallic_scale(1) - 1e-3 / 5e-4).abs() < 1e-5);
         assert_eq!(Config::default().metallic_scale(1), 1.0);
+        let c = Config::from_json(r#"{"refine": {"lambda_m_on": "dielectrics"}}"#).unwrap();
+        assert_eq!(c.refine.lambda_m_on, MetalPriorOn::Dielectrics);
+        assert_eq!(Config::default().refine.lambda_m_on, MetalPriorOn::All);
+        let e = Config::from_json(r#"{"refine": {"lambda_m_on": "metals"}}"#)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("refine.lambda_m_on"), "{e}");
         for bad in [
             r#"{"refine": {"lambda_m": -1e-4}}"#,
             r#"{"refine": {"lambda_d": 0.0, "lambda_m": 5e-4}}"#,

@@ -561,3 +561,75 @@ fn clipped_channels_pull_up_only() {
     let plain = loss::color_loss(t2(&c, [1, 3], &dev()), t2(&gt, [1, 3], &dev()));
     assert!(plain.into_data().try_to_vec::<f32>().unwrap()[0] > loss_of(&c));
 }
+
+/// Eq. 17's m term weighted per segment (`Trainer::metallic_scales`): the diffuse part is
+/// λ_d · (mean |σ − σ₀| + mean s_k·m), each pixel's s_k from the map or, for a segment absent
+/// from it, `cfg.metallic_scale`. A batch drawn from a `DeviceStore` (the labels read from its
+/// host batch) gives the same part.
+#[test]
+fn metallic_scales_weigh_the_m_term_per_segment() {
+    use super::step::{Batch, DeviceStore, SegMode, StepInput, TrainConfig, Trainer};
+    use super::{HashGridConfig, MaterialFieldConfig};
+    use crate::scene::SceneBox;
+    let unit = SceneBox { min: 0.0, max: 1.0 };
+    let cfg = |device_grid: bool| {
+        let grid = HashGridConfig::new().with_levels(4).with_log2_table(10);
+        TrainConfig::new()
+            .with_material(MaterialFieldConfig::new().with_grid(grid))
+            .with_device_grid(device_grid)
+            .with_lambda_d(1e-2)
+            .with_metallic_scale(5.0)
+    };
+    let batch = Batch::synthetic(512, 9);
+    let n = batch.len() as f64;
+    // Segments 0, 2 and 7: 0 spared (s = 1), 7 priced out (s = 20), 2 keeps s = 5.
+    let spared: std::collections::HashMap<i32, f32> = [(0, 1.0), (7, 20.0)].into();
+    let s_of = |k: i32| spared.get(&k).copied().unwrap_or(5.0) as f64;
+    for k in [0, 2, 7] {
+        assert!(batch.seg.contains(&k), "segment {k} in the batch");
+    }
+    let mut tr = Trainer::new(cfg(false), unit, &dev(), 3);
+    let mat = tr.model.material(&batch.x_unit, &[]);
+    let sigma_term = mat
+        .sigma
+        .iter()
+        .map(|&s| (s as f64 - tr.cfg.prior_sigma as f64).abs())
+        .sum::<f64>()
+        / n;
+    let m_term = |s: &dyn Fn(i32) -> f64| {
+        batch
+            .seg
+            .iter()
+            .zip(&mat.metallic)
+            .map(|(&k, &m)| s(k) * m as f64)
+            .sum::<f64>()
+            / n
+    };
+    let want = |s: &dyn Fn(i32) -> f64| 1e-2 * (sigma_term + m_term(s));
+    let uniform_part = tr.gradients(&batch, SegMode::None).parts.diffuse as f64;
+    let w = want(&|_| 5.0);
+    assert!((uniform_part - w).abs() < 1e-5 * w, "{uniform_part} vs {w}");
+    tr.metallic_scales = spared.clone();
+    let per_segment = tr.gradients(&batch, SegMode::None).parts.diffuse as f64;
+    let w = want(&|k| s_of(k));
+    assert!((per_segment - w).abs() < 1e-5 * w, "{per_segment} vs {w}");
+    // The weights change the part by more than its rounding.
+    assert!((per_segment - uniform_part).abs() > 1e-3 * w);
+
+    let mut dt = Trainer::new(cfg(true), unit, &dev(), 3);
+    dt.model.grid.table.clone_from(&tr.model.grid.table);
+    dt.model.upload_table();
+    dt.metallic_scales = spared;
+    let store = DeviceStore::upload(&batch, &dt.device);
+    let idx: Vec<u32> = (0..batch.len() as u32).collect();
+    let input = StepInput::Device {
+        store: &store,
+        idx: &idx,
+        host: Some(&batch),
+    };
+    let on_device = dt.step_on(input, SegMode::None).read().diffuse as f64;
+    assert!(
+        (on_device - per_segment).abs() < 1e-5 * w,
+        "{on_device} vs {per_segment}"
+    );
+}

@@ -157,9 +157,13 @@ pub fn step_entries(
 ) -> StepLoss {
     match ds {
         Some(ds) => {
-            // The semantic loss and a σ pull or anchor read the batch's labels on the host.
-            let host = (mode == SegMode::Semantic || tr.pull.is_some() || tr.anchor.is_some())
-                .then(|| store.batch(idx));
+            // The semantic loss, a σ pull or anchor and per-segment m weights read the batch's
+            // labels on the host.
+            let host = (mode == SegMode::Semantic
+                || tr.pull.is_some()
+                || tr.anchor.is_some()
+                || !tr.metallic_scales.is_empty())
+            .then(|| store.batch(idx));
             let input = StepInput::Device {
                 store: ds,
                 idx,
@@ -175,6 +179,49 @@ pub fn step_entries(
 mod tests {
     use super::*;
     use crate::pipeline::test_data::store;
+
+    /// A step by index from the device store with per-segment m weights set
+    /// (`Trainer::metallic_scales`) reads the batch's labels on the host: it gives the diffuse
+    /// part of the same entries stepped as a host batch, which the weights change.
+    #[test]
+    fn device_steps_read_the_labels_for_metallic_scales() {
+        use crate::pipeline::test_data::{toy_fit, toy_store};
+        let st = toy_store(200);
+        let (cfg, _) = toy_fit();
+        let make = |device_grid: bool| {
+            let cfg = cfg
+                .clone()
+                .with_device_grid(device_grid)
+                .with_metallic_scale(5.0);
+            let unit = fipt_core::scene::SceneBox { min: 0.0, max: 1.0 };
+            Trainer::new(cfg, unit, &burn::tensor::Device::flex(), 5)
+        };
+        let (host, mut dev) = (make(false), make(true));
+        dev.model.grid.table.clone_from(&host.model.grid.table);
+        dev.model.upload_table();
+        assert!(dev.device_resident());
+        let idx: Vec<u32> = (0..64).collect();
+        let diffuse = |mut t: Trainer, ds: Option<&DeviceStore>, spared: bool| {
+            if spared {
+                t.metallic_scales = [(0, 1.0), (3, 0.0)].into_iter().collect();
+            }
+            step_entries(&mut t, ds, &st, &idx, SegMode::Part)
+                .read()
+                .diffuse
+        };
+        let ds = DeviceStore::upload(&st.pixels, &dev.device);
+        let on_host = diffuse(host.clone(), None, true);
+        let on_device = diffuse(dev, Some(&ds), true);
+        let unweighted = diffuse(host, None, false);
+        assert!(
+            (on_device - on_host).abs() <= 1e-4 * on_host,
+            "{on_device} vs {on_host}"
+        );
+        assert!(
+            (unweighted - on_host).abs() > 1e-2 * on_host,
+            "{unweighted} vs {on_host}"
+        );
+    }
 
     /// Uniform draws cover every pixel once per epoch; balanced draws give a 1 %-segment the
     /// same share as a 99 %-segment.

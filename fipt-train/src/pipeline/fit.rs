@@ -32,6 +32,22 @@ pub fn reflected(tr: &Trainer, store: &PixelStore, hits: &[fipt_bake::ViewHits])
     out
 }
 
+/// The segments (`Batch::seg`) whose mean m under `model`, over their stored pixels, is at
+/// least 0.5: the metals of a fit.
+pub fn metal_segments(model: &fipt_core::model::FiptModel, store: &PixelStore) -> Vec<i32> {
+    let mat = model.material(&store.pixels.x_unit, &store.pixels.part);
+    let mut sums: std::collections::BTreeMap<i32, (f64, usize)> = Default::default();
+    for (&s, &m) in store.pixels.seg.iter().zip(&mat.metallic) {
+        let e = sums.entry(s).or_default();
+        e.0 += m as f64;
+        e.1 += 1;
+    }
+    sums.into_iter()
+        .filter(|(_, (sum, n))| *sum >= 0.5 * *n as f64)
+        .map(|(s, _)| s)
+        .collect()
+}
+
 /// Log of a training run: the pixels it drew from, the mean of each loss part per epoch, and
 /// every step's total.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]

@@ -333,7 +333,9 @@ impl Rounds {
             store,
             run: &run,
         };
-        let (tr0, progress) = self.start_fit(ctx, setup, &of, r)?;
+        let spared = self.metals_spared(ctx, setup, store, r);
+        let (mut tr0, progress) = self.start_fit(ctx, setup, &of, r)?;
+        tr0.metallic_scales = spared.iter().map(|&s| (s, 1.0)).collect();
         let ck = &self.ck;
         let mut ck_s = 0.0;
         let (tr, mut p) = fit::fit_resumable(tr0, store, &run, progress, &mut |tr, p| {
@@ -389,6 +391,37 @@ impl Rounds {
         Ok((tr, p))
     }
 
+    /// With `refine.lambda_m` on the dielectrics alone (`MetalPriorOn::Dielectrics`), round
+    /// `r`'s segments that the previous round left metal: their m term keeps the round's λ_d
+    /// (s = 1) in place of `refine.lambda_m`. None in round 0, without `refine.lambda_m`, with
+    /// the key on all segments, or without labels (one segment: the whole scene).
+    fn metals_spared(
+        &self,
+        ctx: &RunContext,
+        setup: &FitSetup,
+        store: &PixelStore,
+        r: usize,
+    ) -> Vec<i32> {
+        let on = ctx.cfg.refine.lambda_m_on == crate::config::MetalPriorOn::Dielectrics
+            && setup.mode != SegMode::None;
+        let Some((prev, _)) = self
+            .prev
+            .as_ref()
+            .filter(|_| r > 0 && on && ctx.cfg.refine.lambda_m.is_some())
+        else {
+            return Vec::new();
+        };
+        let metals = fit::metal_segments(&prev.model, store);
+        if ctx.progress() {
+            eprintln!(
+                "round {r}: refine.lambda_m spares the {} segments round {} left metal {metals:?}",
+                metals.len(),
+                r - 1
+            );
+        }
+        metals
+    }
+
     /// The trainer round `r`'s fit (`of`) starts from, and its saved progress when it resumes.
     fn start_fit(
         &mut self,
@@ -420,6 +453,7 @@ impl Rounds {
             None if warm => {
                 let (mut tr, _) = self.prev.take().context("no previous round")?;
                 tr.cfg.lambda_d = base.lambda_d;
+                tr.cfg.metallic_scale = base.metallic_scale;
                 (tr, None)
             }
             None => (

@@ -45,11 +45,30 @@ impl Trainer {
             Some(cap) => loss::color_loss(loss::clip_to(c, cap.clone()), px.t.gt.clone()),
         };
         let le = loss::emission_loss(raw, self.cfg.lambda_e);
+        // Eq. 17's m term with one s for every pixel, or s per segment (mean of s·m).
+        let (metallic, scale) = if self.metallic_scales.is_empty() {
+            (mat.metallic.clone(), self.cfg.metallic_scale)
+        } else {
+            let b = px.host.expect(
+                "per-segment m weights need the batch on the host (StepInput::Device { host })",
+            );
+            let s: Vec<f32> = b
+                .seg
+                .iter()
+                .map(|k| {
+                    self.metallic_scales
+                        .get(k)
+                        .copied()
+                        .unwrap_or(self.cfg.metallic_scale)
+                })
+                .collect();
+            (mat.metallic.clone() * upload2(s, [n, 1], &dev), 1.0)
+        };
         let mut ld = loss::diffuse_loss(
             mat.sigma.clone(),
-            mat.metallic.clone(),
+            metallic,
             self.cfg.lambda_d,
-            self.cfg.metallic_scale,
+            scale,
             self.cfg.prior_sigma,
         );
         if let Some(z_max) = self.cfg.logit_bound {

@@ -64,6 +64,9 @@ pub struct Trainer {
     /// A second pull of the same form, holding the segments that do not hop where they were
     /// (`train.hop.anchor`).
     pub anchor: Option<SigmaPull>,
+    /// Per segment (`Batch::seg`), the weight s of Eq. 17's m term in place of
+    /// `cfg.metallic_scale`; segments absent keep that (empty: every pixel keeps it).
+    pub metallic_scales: HashMap<i32, f32>,
 }
 
 /// Seconds spent per phase of the training step, summed over `steps` steps. On a device that runs
@@ -178,6 +181,7 @@ impl Trainer {
             profile: StepProfile::default(),
             pull: None,
             anchor: None,
+            metallic_scales: HashMap::new(),
         }
     }
 
