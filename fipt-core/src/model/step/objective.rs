@@ -15,7 +15,7 @@ use crate::model::loss;
 use crate::model::render::{Shadings, composite, render};
 use crate::model::transfer;
 use crate::rng::Rng;
-use burn::tensor::Tensor;
+use burn::tensor::{Device, Tensor};
 
 impl Trainer {
     /// The loss of the networks' raw outputs `raw_mat` (material) and `raw` (emission mask) on
@@ -29,7 +29,6 @@ impl Trainer {
         raw: Tensor<2>,
     ) -> (Tensor<1>, Tensor<1>) {
         let dev = self.device.clone();
-        let n = px.t.len();
         let raw_mat = match (&self.model.nets.part_offsets, &px.t.part) {
             (Some(po), Some(rows)) => po.forward(raw_mat, rows.clone()),
             _ => raw_mat,
@@ -49,20 +48,13 @@ impl Trainer {
         let (metallic, scale) = if self.metallic_scales.is_empty() {
             (mat.metallic.clone(), self.cfg.metallic_scale)
         } else {
-            let b = px.host.expect(
-                "per-segment m weights need the batch on the host (StepInput::Device { host })",
-            );
-            let s: Vec<f32> = b
-                .seg
-                .iter()
-                .map(|k| {
-                    self.metallic_scales
-                        .get(k)
-                        .copied()
-                        .unwrap_or(self.cfg.metallic_scale)
-                })
-                .collect();
-            (mat.metallic.clone() * upload2(s, [n, 1], &dev), 1.0)
+            let s = per_segment(px, &dev, "per-segment m weights", |k| {
+                self.metallic_scales
+                    .get(&k)
+                    .copied()
+                    .unwrap_or(self.cfg.metallic_scale)
+            });
+            (mat.metallic.clone() * s, 1.0)
         };
         let mut ld = loss::diffuse_loss(
             mat.sigma.clone(),
@@ -77,16 +69,18 @@ impl Trainer {
             ld = ld + loss::logit_bound_loss(z, z_max, self.cfg.lambda_logit);
         }
         for pull in [&self.pull, &self.anchor].into_iter().flatten() {
-            let b = px
-                .host
-                .expect("the σ pull needs the batch on the host (StepInput::Device { host })");
+            // Each pulled segment's target, with weight 1; other segments' pixels weigh 0.
             let targets = |of: &std::collections::HashMap<i32, f32>| {
-                let (t, w): (Vec<f32>, Vec<f32>) = b
-                    .seg
-                    .iter()
-                    .map(|s| of.get(s).map_or((0.0, 0.0), |&t| (t, 1.0)))
-                    .unzip();
-                (upload2(t, [n, 1], &dev), upload2(w, [n, 1], &dev))
+                let what = "the σ pull";
+                (
+                    per_segment(px, &dev, what, |k| of.get(&k).copied().unwrap_or(0.0)),
+                    per_segment(
+                        px,
+                        &dev,
+                        what,
+                        |k| if of.contains_key(&k) { 1.0 } else { 0.0 },
+                    ),
+                )
             };
             let (t, w) = targets(&pull.target);
             ld = ld + loss::sigma_pull_loss(mat.sigma.clone(), t, w, pull.weight);
@@ -155,4 +149,15 @@ impl Trainer {
             }
         }
     }
+}
+
+/// One value per pixel of the step, [N, 1] on `dev`, from each pixel's segment label
+/// (`Batch::seg` of the host batch, which `what` needs): the per-segment weights and targets of
+/// the m prior and the σ pulls.
+fn per_segment(px: &Pixels, dev: &Device, what: &str, value: impl Fn(i32) -> f32) -> Tensor<2> {
+    let b = px.host.unwrap_or_else(|| {
+        panic!("{what} needs the batch on the host (StepInput::Device {{ host }})")
+    });
+    let v: Vec<f32> = b.seg.iter().map(|&k| value(k)).collect();
+    upload2(v, [b.seg.len(), 1], dev)
 }
