@@ -266,6 +266,10 @@ pub struct TrainSection {
     /// Share of each fit's steps over which λ_d first rises linearly from 0 (0: none, the
     /// reference).
     pub lambda_d_warmup: f32,
+    /// Smallest share of a training pixel's square that the part its centre ray hits must
+    /// cover for the pixel to enter the fits (`pipeline::pixels::coverage`; 0: every pixel,
+    /// the reference).
+    pub min_coverage: f32,
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
@@ -312,6 +316,7 @@ impl Default for TrainSection {
             // λ_d rises over the first three quarters of each fit and the σ, m logits are
             // bounded (the reference has neither); `docs/departures/`.
             lambda_d_warmup: 0.75,
+            min_coverage: 0.0,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
@@ -836,6 +841,7 @@ impl TrainSection {
             ("train.lambda_d_warmup", t.lambda_d_warmup),
             ("train.balance", t.balance),
             ("train.prior_sigma", t.prior_sigma),
+            ("train.min_coverage", t.min_coverage),
         ]
         .into_iter()
         .chain(warmup_override)

@@ -7,11 +7,11 @@
 //! emitters. Must not touch: training.
 
 use super::bake::Baked;
-use fipt_bake::ViewHits;
+use fipt_bake::{Accel, ViewHits};
 use fipt_core::model::step::CAP_NONE;
 use fipt_core::model::step::SegMode;
 use fipt_core::model::{Batch, PartMap};
-use fipt_core::scene::{MapKind, SceneBox, Split};
+use fipt_core::scene::{Camera, MapKind, SceneBox, Split};
 use fipt_core::shading::ShadingLayout;
 
 /// Every training pixel whose pixel-centre ray hit the mesh (less those `retain` removed), as
@@ -271,6 +271,65 @@ pub fn ring_around(on: &[bool], width: usize, margin: usize) -> Vec<bool> {
     near.iter().zip(on).map(|(n, e)| *n && !e).collect()
 }
 
+/// Points per side of the grid `coverage` casts inside a pixel.
+const COVER_GRID: usize = 4;
+
+/// Per view and pixel, the share of the pixel's square that the surface its centre ray hits
+/// covers: the share of a 4×4 grid of points inside the pixel whose rays hit a triangle with
+/// the `keys` entry of the centre's triangle (a part label, or a plane). A photo's pixel is the
+/// mean over its square (a box filter) while the fit reads the surface at its centre, so a
+/// pixel split between two parts mixes a second material into the first one's data. Pixels
+/// whose 3×3 neighbourhood of centre rays hits triangles of one key are covered whole without
+/// casting; a pixel whose centre ray misses covers 0.
+pub fn coverage<'a>(
+    accel: &Accel,
+    cams: impl IntoIterator<Item = &'a Camera>,
+    hits: &[ViewHits],
+    keys: &[u64],
+) -> Vec<Vec<f32>> {
+    use rayon::prelude::*;
+    let n = COVER_GRID;
+    cams.into_iter()
+        .zip(hits)
+        .map(|(cam, h)| {
+            let (w, ht) = (h.width, h.height);
+            let key = |t: i32| (t >= 0).then(|| keys[t as usize]);
+            let centre: Vec<Option<u64>> = h.tri.iter().map(|&t| key(t)).collect();
+            let o = cam.origin_f32();
+            (0..w * ht)
+                .into_par_iter()
+                .map(|p| {
+                    let Some(c) = centre[p] else {
+                        return 0.0;
+                    };
+                    let (x, y) = (p % w, p / w);
+                    let whole = (y.saturating_sub(1)..(y + 2).min(ht)).all(|yy| {
+                        (x.saturating_sub(1)..(x + 2).min(w))
+                            .all(|xx| centre[yy * w + xx] == Some(c))
+                    });
+                    if whole {
+                        return 1.0;
+                    }
+                    let rays: Vec<_> = (0..n * n)
+                        .map(|s| {
+                            let px = x as f64 + ((s % n) as f64 + 0.5) / n as f64;
+                            let py = y as f64 + ((s / n) as f64 + 0.5) / n as f64;
+                            (o, cam.direction_at(px, py))
+                        })
+                        .collect();
+                    let mut sub = vec![None; rays.len()];
+                    accel.closest_many(&rays, 0.0, f32::INFINITY, &mut sub);
+                    let same = sub
+                        .iter()
+                        .filter(|hit| hit.is_some_and(|x| key(x.tri as i32) == Some(c)))
+                        .count();
+                    same as f32 / (n * n) as f32
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// The median pixel footprint of the training views in unit-cube units: over every hit, the
 /// hit distance times the angle one pixel subtends (1/f_x), divided by the scene box's side.
 pub fn pixel_footprint(train: &Split, hits: &[ViewHits], sb: &SceneBox) -> f64 {
@@ -418,5 +477,47 @@ mod tests {
         assert_eq!(store.tri, kept.iter().map(|&i| 3 * i).collect::<Vec<_>>());
         assert_eq!(got.seg, want.seg);
         assert_eq!(got.cap, want.cap);
+    }
+
+    /// A strip 2.6 pixels wide in front of a wall, across the whole height of an 8-pixel-wide
+    /// view: the pixels its edges split cover 3/4 of the wall side (the grid's share of the
+    /// true 0.7), those whose centre it hits are covered whole, and with one key for both
+    /// every pixel is whole.
+    #[test]
+    fn coverage_is_the_share_of_the_pixel_on_the_centres_part() {
+        use glam::DVec3;
+        let (w, h) = (8, 4);
+        let cam = Camera::look_at_fov(DVec3::ZERO, DVec3::Z, DVec3::Y, 1.0, w, h);
+        // Pixel columns [2.7, 5.3] at depth 5: half-width 1.3 pixels.
+        let (zs, zw) = (5.0f32, 10.0f32);
+        let hs = 1.3 * zs / cam.fx as f32;
+        let quad = |x0: f32, x1: f32, z: f32, y: f32| {
+            [
+                Vec3::new(x0, -y, z),
+                Vec3::new(x1, -y, z),
+                Vec3::new(x1, y, z),
+                Vec3::new(x0, y, z),
+            ]
+        };
+        let mut vertices = quad(-20.0, 20.0, zw, 20.0).to_vec();
+        vertices.extend(quad(-hs, hs, zs, 20.0));
+        let mesh = fipt_core::scene::Mesh {
+            vertices,
+            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+        };
+        let accel = Accel::build(&mesh);
+        let hits = vec![fipt_bake::cast_view(&accel, &mesh, &cam)];
+        let strip: Vec<bool> = hits[0].tri.iter().map(|&t| t >= 2).collect();
+        assert_eq!(
+            strip[..w],
+            [false, false, false, true, true, false, false, false]
+        );
+        let cover = coverage(&accel, [&cam], &hits, &[0, 0, 1, 1]);
+        let want = [1.0, 1.0, 0.75, 1.0, 1.0, 0.75, 1.0, 1.0];
+        for y in 0..h {
+            assert_eq!(cover[0][y * w..(y + 1) * w], want, "row {y}");
+        }
+        let one = coverage(&accel, [&cam], &hits, &[7, 7, 7, 7]);
+        assert!(one[0].iter().all(|&c| c == 1.0));
     }
 }

@@ -75,7 +75,38 @@ impl FitSetup {
             self.mode,
         );
         st.set_parts(&parts);
+        self.leave_out_mixed_pixels(ctx, baked, &mut st);
         (st, parts)
+    }
+
+    /// With `train.min_coverage` τ > 0: the pixels whose square the part their centre ray hits
+    /// covers less than τ of (`pixels::coverage`; planes of the mesh without labels) leave the
+    /// store, for every round's fit.
+    fn leave_out_mixed_pixels(&self, ctx: &RunContext, baked: &Baked, st: &mut PixelStore) {
+        let tau = ctx.cfg.train.min_coverage;
+        if tau <= 0.0 {
+            return;
+        }
+        let keys: Vec<u64> = match self.mode {
+            SegMode::None => crate::ldr::edges::plane_keys(&ctx.ds.mesh),
+            _ => st
+                .triangle_labels(ctx.ds.mesh.num_triangles())
+                .into_iter()
+                .map(|l| l as u32 as u64)
+                .collect(),
+        };
+        let cover = pixels::coverage(
+            &ctx.accel,
+            ctx.ds.train.views.iter().map(|v| &v.camera),
+            &baked.hits,
+            &keys,
+        );
+        let gone = st.retain(|k, p| cover[k as usize][p as usize] >= tau);
+        if ctx.progress() {
+            eprintln!(
+                "left {gone} pixels that their part covers less than {tau} of out of the fits (train.min_coverage)"
+            );
+        }
     }
 
     /// Round `r`'s trainer config, before its schedule sets the rate and λ_d of each step.
