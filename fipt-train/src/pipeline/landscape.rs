@@ -72,22 +72,21 @@ pub struct FittedLandscape {
 }
 
 /// The pixels of a view that the tables take, with their part's index in `meta.parts`: those
-/// whose centre ray hits a part, off a true emitter (the Emit map) and more than `margin`
-/// pixels from one.
+/// whose centre ray hits a part and that `left` (of view `k`) does not leave out.
 fn part_pixels(
     meta: &fipt_core::scene::meta::SceneMeta,
     tri_part: &[usize],
-    v: &fipt_core::scene::View,
-    h: &ViewHits,
-    margin: usize,
+    (k, v, h): (usize, &fipt_core::scene::View, &ViewHits),
+    left: &LeftOut,
 ) -> Vec<(usize, usize)> {
     let emit = v.map(MapKind::Emit);
     let lit: Vec<bool> = (0..h.num_pixels())
         .map(|p| emit.is_some_and(|e| e.rgb(p).iter().sum::<f32>() > 0.0))
         .collect();
-    let near = super::pixels::ring_around(&lit, h.width, margin);
+    let near = super::pixels::ring_around(&lit, h.width, left.margin);
+    let covered = |p: usize| left.cover.as_ref().is_none_or(|(c, tau)| c[k][p] >= *tau);
     (0..h.num_pixels())
-        .filter(|&p| h.tri[p] >= 0 && !lit[p] && !near[p])
+        .filter(|&p| h.tri[p] >= 0 && !lit[p] && !near[p] && covered(p))
         .filter_map(|p| {
             let part = meta
                 .parts
@@ -98,17 +97,24 @@ fn part_pixels(
         .collect()
 }
 
+/// The pixels every table leaves out, as the fits do: those within `margin` pixels of a true
+/// emitter's (`refine.emitter_margin`), and with `cover` (per view and pixel, and τ) those
+/// that the part their centre ray hits covers less than τ of (`train.min_coverage`).
+pub struct LeftOut {
+    pub margin: usize,
+    pub cover: Option<(Vec<Vec<f32>>, f32)>,
+}
+
 /// The landscape of every part of a scene with ground truth (`scene_meta.json` and the
 /// BaseColor/Roughness/Metallic maps); empty without. `shadings` are per train view. The
-/// pixels within `margin` pixels of a true emitter's (the Emit maps) are left out, as
-/// `refine.emitter_margin` leaves them out of a fit.
+/// pixels `left` names are left out, as the fits leave them out.
 pub fn landscape(
     ds: &Dataset,
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
     prior: fipt_core::model::loss::DiffusePrior,
     fitted: Option<&[ViewMaps]>,
-    margin: usize,
+    left: &LeftOut,
 ) -> Vec<PartLandscape> {
     let Some(meta) = ds.meta.as_ref() else {
         return Vec::new();
@@ -156,7 +162,7 @@ pub fn landscape(
         ) else {
             continue;
         };
-        for (p, part) in part_pixels(meta, &tri_part, v, h, margin) {
+        for (p, part) in part_pixels(meta, &tri_part, (k, v, h), left) {
             let row = &mut rows[part];
             let a = Vec3::from(base.rgb(p));
             let m = mt.scalar(p);
@@ -230,7 +236,7 @@ pub fn patch_profile(
     ds: &Dataset,
     hits: &[ViewHits],
     shadings: &[Vec<f32>],
-    margin: usize,
+    left: &LeftOut,
     side: f32,
     rows: &mut [PartLandscape],
 ) {
@@ -241,7 +247,7 @@ pub fn patch_profile(
     let tri_part = meta.triangle_part(ds.mesh.num_triangles());
     let mut by_part: Vec<Vec<(usize, usize)>> = vec![Vec::new(); meta.parts.len()];
     for (k, (v, h)) in ds.train.views.iter().zip(hits).enumerate() {
-        for (p, part) in part_pixels(meta, &tri_part, v, h, margin) {
+        for (p, part) in part_pixels(meta, &tri_part, (k, v, h), left) {
             by_part[part].push((k, p));
         }
     }

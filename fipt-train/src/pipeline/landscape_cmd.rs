@@ -17,7 +17,8 @@ use std::path::Path;
 /// `out/landscape.json` and returned as (shadings name, table). With `fitted`, every table also
 /// sweeps σ at the base colour and metallic of the model `run` left in `out/maps/train`, and
 /// gives that model's own data term. Every table leaves out the pixels within
-/// `refine.emitter_margin` of a true emitter's.
+/// `refine.emitter_margin` of a true emitter's, and with `train.min_coverage` τ those that
+/// their part covers less than τ of.
 pub fn landscapes(
     scene: &Path,
     out: &Path,
@@ -49,20 +50,39 @@ pub fn landscapes(
             sigma: t.prior_sigma,
         }
     };
-    let margin = cfg.refine.emitter_margin;
+    // The pixels the fits leave out: next to an emitter, and split between two parts (the
+    // true parts' keys).
+    let cover = (cfg.train.min_coverage > 0.0).then(|| {
+        let keys: Vec<u64> = ds.meta.as_ref().map_or_else(
+            || crate::ldr::edges::plane_keys(&ds.mesh),
+            |m| {
+                m.triangle_part(ds.mesh.num_triangles())
+                    .into_iter()
+                    .map(|p| p as u64)
+                    .collect()
+            },
+        );
+        let cams = ds.train.views.iter().map(|v| &v.camera);
+        let c = super::pixels::coverage(&ctx.accel, cams, &baked.hits, &keys);
+        (c, cfg.train.min_coverage)
+    });
+    let left = super::landscape::LeftOut {
+        margin: cfg.refine.emitter_margin,
+        cover,
+    };
     // The patch profile's cubes: `train.hop.patch` footprints a side (2 where the hop has none).
     let sb = baked.light_field.scene_box;
     let footprint = super::pixels::pixel_footprint(&ds.train, &baked.hits, &sb);
     let per = cfg.train.hop.as_ref().map_or(0.0, |h| h.patch).max(0.0);
     let side = (footprint * (sb.max - sb.min) as f64) as f32 * if per > 0.0 { per } else { 2.0 };
     let with_patch = |mut rows: Vec<PartLandscape>, s: &[Vec<f32>]| {
-        super::landscape::patch_profile(ds, &baked.hits, s, margin, side, &mut rows);
+        super::landscape::patch_profile(ds, &baked.hits, s, &left, side, &mut rows);
         rows
     };
     let mut tables = vec![(
         "baked".to_string(),
         with_patch(
-            landscape(ds, &baked.hits, &baked.shadings, prior(0), maps, margin),
+            landscape(ds, &baked.hits, &baked.shadings, prior(0), maps, &left),
             &baked.shadings,
         ),
     )];
@@ -74,14 +94,14 @@ pub fn landscapes(
         };
         tables.push((
             format!("refined{r}"),
-            with_patch(landscape(ds, &baked.hits, &s, prior(r), maps, margin), &s),
+            with_patch(landscape(ds, &baked.hits, &s, prior(r), maps, &left), &s),
         ));
     }
     if oracle {
         let s = refine::oracle_cached(&ctx, &baked)?;
         tables.push((
             "oracle".to_string(),
-            with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, margin), &s),
+            with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, &left), &s),
         ));
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
