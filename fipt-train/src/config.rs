@@ -591,10 +591,6 @@ pub struct HopConfig {
     /// names one, through the release phase in place of releasing it (0: released, like every
     /// other candidate but the patch candidates).
     pub hold_metals: f32,
-    /// The patch hypothesis also sweeps σ as a metal (m = 1, the base colour still solved per
-    /// patch), and proposes the metal where it scores below the dielectric; it then hops with
-    /// m pulled to 1 (false: a dielectric's sweep alone).
-    pub patch_metal: bool,
 }
 
 impl Default for HopConfig {
@@ -616,7 +612,6 @@ impl Default for HopConfig {
             settle: true,
             patch_dielectric: true,
             hold_metals: 0.1,
-            patch_metal: false,
         }
     }
 }

@@ -107,10 +107,6 @@ pub struct SegmentObjective {
     /// there, and the objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
-    /// Whether `patch` is the metal's sweep (m = 1, `train.hop.patch_metal`), which scored
-    /// below the dielectric's; its last value is still the dielectric's at the fitted σ.
-    #[serde(default)]
-    pub patch_metal: bool,
     /// The σ the anchor held it at in place of its fitted one, with m 0 (`train.hop.settle`;
     /// None: its fitted σ and m, or not held).
     #[serde(default)]
@@ -407,7 +403,6 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                 }),
                 carried: e.carried,
                 patch: None,
-                patch_metal: false,
                 settled: None,
             }
         })
@@ -483,11 +478,7 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
     if let Some((sigma, obj, base)) = c.patch
         && c.metallic < 0.5
     {
-        let m = if c.patch_metal {
-            Some(1.0)
-        } else {
-            cfg.patch_dielectric.then_some(0.0)
-        };
+        let m = cfg.patch_dielectric.then_some(0.0);
         options.push((Hypothesis::Patch, sigma, m, obj, base));
     }
     let gain = |obj: f64, base: f64| 1.0 - obj / base;
@@ -530,7 +521,7 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
 /// within `min_move` of it (nearer than any hop goes; its data is flat there, and the prior
 /// decided where the fit left it). None: held at its fitted σ.
 fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> {
-    if !(cfg.settle && refined && cfg.anchor > 0.0) || c.metallic >= 0.5 || c.patch_metal {
+    if !(cfg.settle && refined && cfg.anchor > 0.0) || c.metallic >= 0.5 {
         return None;
     }
     let (sigma, obj, base) = c.patch?;
@@ -592,7 +583,7 @@ pub fn hop(
         (plan.cfg.patch > 0.0).then(|| PatchSegments::new(store, plan.cfg.patch * plan.footprint));
     if let Some(p) = &patches {
         for row in &mut segments {
-            (row.patch, row.patch_metal) = p.profile(&tr.model, row.segment, plan.cfg.patch_metal);
+            row.patch = p.profile(&tr.model, row.segment);
             row.settled = settled(plan.cfg, plan.refined, row);
         }
     }
@@ -651,8 +642,7 @@ pub fn hop(
             // A patch candidate is measured as it was proposed: with the colour solved per
             // patch.
             if let (true, Some(p)) = (patch, &patches) {
-                let m = c.target_metallic.unwrap_or(0.0) as f32;
-                c.objective_after = p.at_model(&tr.model, c.segment, m);
+                c.objective_after = p.at_model(&tr.model, c.segment);
             }
         }
         let kind = if patch {
@@ -832,10 +822,11 @@ impl<'a> PatchSegments<'a> {
         Self { store, segments }
     }
 
-    /// The patch objective (mean per pixel) of segment `id` at metallic `m` (0: a dielectric of
-    /// one σ, 1: a metal) under the model's mask, at one common σ: each of `sweep`, then the
-    /// model's mean σ over the segment (the last value); None for a segment without pixels.
-    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32], m: f32) -> Option<Vec<f64>> {
+    /// The patch objective (mean per pixel) of segment `id` as a dielectric (m = 0: the
+    /// hypothesis is a dielectric of one σ) under the model's mask, at one common σ: each of
+    /// `sweep`, then the model's mean σ over the segment (the last value); None for a segment
+    /// without pixels.
+    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
         let (idx, cubes) = self.segments.get(&id)?;
         let b = self.store.batch(idx);
         let mat = model.material(&b.x_unit, &b.part);
@@ -844,7 +835,7 @@ impl<'a> PatchSegments<'a> {
             .map(|i| super::patches::PatchPixel {
                 shading: ShadingLayout::pixel(&b.shadings, i),
                 gt: [b.gt[3 * i], b.gt[3 * i + 1], b.gt[3 * i + 2]],
-                metallic: m,
+                metallic: 0.0,
                 alpha: alpha[i],
             })
             .collect();
@@ -859,39 +850,17 @@ impl<'a> PatchSegments<'a> {
         )
     }
 
-    /// The segment's best swept σ as a dielectric, the patch objective there, and at the
-    /// model's mean σ; with `metal`, the metal's best σ and objective in place of the
-    /// dielectric's where they are lower (and true with them).
-    fn profile(&self, model: &FiptModel, id: i32, metal: bool) -> (Option<(f64, f64, f64)>, bool) {
-        let Some(mut swept) = self.profile_at(model, id, &sweep(), 0.0) else {
-            return (None, false);
-        };
-        let Some(at_mean) = swept.pop() else {
-            return (None, false);
-        };
+    /// The segment's best swept σ, the patch objective there, and at the model's mean σ.
+    fn profile(&self, model: &FiptModel, id: i32) -> Option<(f64, f64, f64)> {
+        let mut swept = self.profile_at(model, id, &sweep())?;
+        let at_mean = swept.pop()?;
         let (best_sigma, best) = profile_min(&swept);
-        let dielectric = (Some((best_sigma, best, at_mean)), false);
-        if !metal {
-            return dielectric;
-        }
-        match self.profile_at(model, id, &sweep(), 1.0) {
-            Some(v) => {
-                let (sigma, obj) = profile_min(&v[..v.len() - 1]);
-                if obj < best {
-                    (Some((sigma, obj, at_mean)), true)
-                } else {
-                    dielectric
-                }
-            }
-            None => dielectric,
-        }
+        Some((best_sigma, best, at_mean))
     }
 
-    /// The patch objective at the model's mean σ and metallic `m` (NaN for a segment without
-    /// pixels).
-    fn at_model(&self, model: &FiptModel, id: i32, m: f32) -> f64 {
-        self.profile_at(model, id, &[], m)
-            .map_or(f64::NAN, |v| v[0])
+    /// The patch objective at the model's mean σ (NaN for a segment without pixels).
+    fn at_model(&self, model: &FiptModel, id: i32) -> f64 {
+        self.profile_at(model, id, &[]).map_or(f64::NAN, |v| v[0])
     }
 }
 
@@ -1381,28 +1350,6 @@ mod tests {
         assert_eq!((d.len(), d[0].target, d[0].target_metallic), (1, 0.6, None));
     }
 
-    /// A patch hypothesis solved as a metal (`patch_metal`) hops as one, m pulled to 1: across
-    /// 0.5 it is far whatever its σ, it counts by the patch gain, and the anchor never settles
-    /// a segment at it as a dielectric.
-    #[test]
-    fn a_metal_patch_hops_as_a_metal() {
-        let (cfg, mut rows) = one_flat_segment();
-        rows[0].patch = Some((0.7, 0.97, 1.0));
-        // As a dielectric, 0.1 from the fit is too near.
-        assert!(candidates(&cfg, &rows).is_empty());
-        assert_eq!(settled(&cfg, true, &rows[0]), Some(0.7));
-        rows[0].patch_metal = true;
-        let c = candidates(&cfg, &rows);
-        assert_eq!(
-            (c.len(), c[0].source, c[0].target, c[0].target_metallic),
-            (1, Hypothesis::Patch, 0.7, Some(1.0))
-        );
-        assert_eq!(settled(&cfg, true, &rows[0]), None);
-        // 1 % lower is still too little.
-        rows[0].patch = Some((0.7, 0.99, 1.0));
-        assert!(candidates(&cfg, &rows).is_empty());
-    }
-
     /// The data term (λ_d 0) of every sampled segment at `tr`'s model.
     fn data_at(tr: &Trainer, st: &PixelStore, samples: &[SegmentSample]) -> Vec<SegmentEval> {
         let prior = DiffusePrior {
@@ -1634,11 +1581,6 @@ mod tests {
     /// One segment of `n` pixels in four cubes, one base colour per cube, dielectric, whose
     /// photos are the factorised render at σ `truth`.
     fn rendered_store(n: usize, truth: f32) -> PixelStore {
-        rendered_store_m(n, truth, 0.0)
-    }
-
-    /// `rendered_store` at metallic `m`.
-    fn rendered_store_m(n: usize, truth: f32, m: f32) -> PixelStore {
         let mut st = toy_store(n);
         st.pixels.seg.iter_mut().for_each(|s| *s = 0);
         let d = ShadingLayout::DIM;
@@ -1654,7 +1596,7 @@ mod tests {
             }
             let sh = ShadingLayout::pixel(&st.pixels.shadings, i).to_vec();
             let a = glam::Vec3::new(0.2 + 0.2 * cube as f32, 0.4, 0.3);
-            let (kd, ks) = reflectances(a, m);
+            let (kd, ks) = reflectances(a, 0.0);
             let c = factorised_render(kd.to_array(), ks.to_array(), truth, &sh);
             st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&c);
         }
@@ -1701,34 +1643,5 @@ mod tests {
         );
         assert!(!rep.accepted);
         assert_eq!(rep.steps, 2 * 25);
-    }
-
-    /// On photos rendered as a metal at σ 0.3, one colour per cube, the patch profile with
-    /// `patch_metal` is the metal's, near σ 0.3, and it proposes m 1; without the key, or on
-    /// photos of a dielectric, the profile is the dielectric's.
-    #[test]
-    fn the_metal_patch_finds_a_rendered_metal() {
-        let truth = 0.3;
-        let profile = |m: f32, on: bool| {
-            let st = rendered_store_m(400, truth, m);
-            let (tr, schedule) = toy_fitted(&st);
-            let hc = HopConfig {
-                metal: false,
-                patch: 1.0,
-                patch_metal: on,
-                ..HopConfig::default()
-            };
-            let plan = toy_plan(&hc, &schedule, 5e-4, 1.0);
-            let segments = PatchSegments::new(&st, plan.cfg.patch * plan.footprint);
-            segments.profile(&tr.model, 0, on)
-        };
-        let (metal, is_metal) = profile(1.0, true);
-        let (best, obj, _) = metal.expect("patch profile");
-        assert!(is_metal);
-        assert!((best - truth as f64).abs() < 0.05, "best σ {best}");
-        let (dielectric, off) = profile(1.0, false);
-        assert!(!off);
-        assert!(obj < 0.5 * dielectric.unwrap().1, "{obj} vs {dielectric:?}");
-        assert!(!profile(0.0, true).1);
     }
 }
