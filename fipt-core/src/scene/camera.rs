@@ -119,6 +119,20 @@ impl Camera {
         self.origin.as_vec3()
     }
 
+    /// The rays (origin, unit direction) through the centres of an n×n grid of cells over
+    /// pixel (col `x`, row `y`), row-major: ray s goes through
+    /// (x + (s mod n + 0.5)/n, y + (s div n + 0.5)/n).
+    pub fn grid_rays(&self, x: usize, y: usize, n: usize) -> Vec<(Vec3, Vec3)> {
+        let o = self.origin_f32();
+        (0..n * n)
+            .map(|s| {
+                let px = x as f64 + ((s % n) as f64 + 0.5) / n as f64;
+                let py = y as f64 + ((s / n) as f64 + 0.5) / n as f64;
+                (o, self.direction_at(px, py))
+            })
+            .collect()
+    }
+
     /// All pixel-centre directions, row-major.
     pub fn pixel_directions(&self) -> Vec<Vec3> {
         let mut out = Vec::with_capacity(self.width * self.height);

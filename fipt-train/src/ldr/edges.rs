@@ -119,7 +119,6 @@ pub fn edge_samples(
     frame: &LdrFrame,
 ) -> Vec<EdgeSample> {
     let (w, h) = (cam.width, cam.height);
-    let o = cam.origin_f32();
     let key_of = |hit: Option<fipt_bake::Hit>| hit.map_or(MISS, |x| keys[x.tri as usize]);
     let centre: Vec<u64> = fipt_bake::cast_view(accel, mesh, cam)
         .tri
@@ -148,15 +147,7 @@ pub fn edge_samples(
             if pure[p] {
                 return None;
             }
-            let (x, y) = (p % w, p / w);
-            let rays: Vec<_> = (0..SUB * SUB)
-                .map(|s| {
-                    let (i, j) = (s % SUB, s / SUB);
-                    let px = x as f64 + (i as f64 + 0.5) / SUB as f64;
-                    let py = y as f64 + (j as f64 + 0.5) / SUB as f64;
-                    (o, cam.direction_at(px, py))
-                })
-                .collect();
+            let rays = cam.grid_rays(p % w, p / w, SUB);
             let mut hits = vec![None; rays.len()];
             accel.closest_many(&rays, 0.0, f32::INFINITY, &mut hits);
             let mut counts: Vec<Surface> = Vec::new();

@@ -295,7 +295,6 @@ pub fn coverage<'a>(
             let (w, ht) = (h.width, h.height);
             let key = |t: i32| (t >= 0).then(|| keys[t as usize]);
             let centre: Vec<Option<u64>> = h.tri.iter().map(|&t| key(t)).collect();
-            let o = cam.origin_f32();
             (0..w * ht)
                 .into_par_iter()
                 .map(|p| {
@@ -310,18 +309,12 @@ pub fn coverage<'a>(
                     if whole {
                         return 1.0;
                     }
-                    let rays: Vec<_> = (0..n * n)
-                        .map(|s| {
-                            let px = x as f64 + ((s % n) as f64 + 0.5) / n as f64;
-                            let py = y as f64 + ((s / n) as f64 + 0.5) / n as f64;
-                            (o, cam.direction_at(px, py))
-                        })
-                        .collect();
+                    let rays = cam.grid_rays(x, y, n);
                     let mut sub = vec![None; rays.len()];
                     accel.closest_many(&rays, 0.0, f32::INFINITY, &mut sub);
                     let same = sub
                         .iter()
-                        .filter(|hit| hit.is_some_and(|x| key(x.tri as i32) == Some(c)))
+                        .filter(|hit| hit.is_some_and(|x| keys[x.tri as usize] == c))
                         .count();
                     same as f32 / (n * n) as f32
                 })
