@@ -240,7 +240,7 @@ fn gt_maps(sc: &DemoScene, cam: &Camera, view_key: u64) -> (ViewMaps, Vec<f32>, 
     let px: Vec<_> = (0..w * h)
         .into_par_iter()
         .map(|p| {
-            let dir = cam.direction_at((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+            let dir = cam.pixel_direction(p / w, p % w);
             let Some(hit) = accel.closest(origin, dir, 0.0, f32::INFINITY) else {
                 return (
                     [0.0f32; 3],
@@ -602,7 +602,7 @@ pub(crate) mod tests {
         for c in &cams {
             let (w, h) = (c.width, c.height);
             for p in 0..w * h {
-                let dir = c.direction_at((p % w) as f64 + 0.5, (p / w) as f64 + 0.5);
+                let dir = c.pixel_direction(p / w, p % w);
                 if let Some(hit) = accel.closest(c.origin_f32(), dir, 0.0, f32::INFINITY) {
                     let t = hit.tri as usize;
                     let part = ranges
