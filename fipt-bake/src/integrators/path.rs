@@ -303,10 +303,10 @@ impl PathScene<'_> {
                         h[i] = o.map(|o| (o.t, o.tri));
                     }
                 });
-            stats.rays += paths.iter().filter(|p| p.alive).count() as u64;
-            // One batched material query for all hit points.
+            stats.rays += paths.par_iter().filter(|p| p.alive).count() as u64;
+            // One batched material query for all hit points, in path order.
             let (idx, (points, tris)): (Vec<usize>, (Vec<Vec3>, Vec<u32>)) = hits
-                .iter()
+                .par_iter()
                 .enumerate()
                 .filter_map(|(i, h)| {
                     h.map(|(t, tri)| (i, (paths[i].origin + paths[i].dir * t, tri)))
@@ -348,7 +348,7 @@ impl PathScene<'_> {
                 })
                 .sum();
             stats.shadow_rays += shadow;
-            if !paths.iter().any(|p| p.alive) {
+            if !paths.par_iter().any(|p| p.alive) {
                 break;
             }
         }

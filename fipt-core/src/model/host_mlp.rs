@@ -223,11 +223,13 @@ impl HostMlp {
         assert_eq!(x.len() % din, 0, "input rows of {din}");
         let n = x.len() / din;
         let last = self.layers.len() - 1;
+        // Allocated, not zeroed: the blocks write every element (zeroing these N × width
+        // buffers on the calling thread would hold both cores up once per layer).
         let mut hidden: Vec<Vec<f32>> = self.layers[..last]
             .iter()
-            .map(|l| vec![0.0; n * l.output])
+            .map(|l| Vec::with_capacity(n * l.output))
             .collect();
-        let mut out = vec![0.0; n * self.output()];
+        let mut out: Vec<f32> = Vec::with_capacity(n * self.output());
         let hp: Vec<Rows> = hidden.iter_mut().map(|h| Rows(h.as_mut_ptr())).collect();
         let op = Rows(out.as_mut_ptr());
         (0..n.div_ceil(BLOCK)).into_par_iter().for_each(|blk| {
@@ -244,6 +246,14 @@ impl HostMlp {
                 }
             }
         });
+        // SAFETY: every block wrote all its rows of every buffer (`mm` overwrites its first
+        // part's product without reading the destination), so all n rows are initialised.
+        unsafe {
+            for (h, l) in hidden.iter_mut().zip(&self.layers) {
+                h.set_len(n * l.output);
+            }
+            out.set_len(n * self.output());
+        }
         (out, Tape { n, hidden })
     }
 

@@ -13,6 +13,7 @@ use fipt_core::model::step::SegMode;
 use fipt_core::model::{Batch, PartMap};
 use fipt_core::scene::{Camera, MapKind, SceneBox, Split};
 use fipt_core::shading::ShadingLayout;
+use rayon::prelude::*;
 
 /// Every training pixel whose pixel-centre ray hit the mesh (less those `retain` removed), as
 /// one big `Batch`.
@@ -167,34 +168,41 @@ impl PixelStore {
         gone
     }
 
-    /// The batch of the given entries.
+    /// The batch of the given entries, gathered in parallel (a step's batch reads scattered
+    /// entries of a store of millions).
     pub fn batch(&self, idx: &[u32]) -> Batch {
         let b = &self.pixels;
-        let mut out = Batch {
-            x_unit: Vec::with_capacity(idx.len()),
-            x_world: Vec::with_capacity(idx.len()),
-            shadings: Vec::with_capacity(idx.len() * ShadingLayout::DIM),
-            gt: Vec::with_capacity(idx.len() * 3),
-            seg: Vec::with_capacity(idx.len()),
-            cap: Vec::new(),
-            part: Vec::new(),
-        };
-        for &i in idx {
-            let i = i as usize;
-            out.x_unit.push(b.x_unit[i]);
-            out.x_world.push(b.x_world[i]);
-            out.shadings
-                .extend_from_slice(ShadingLayout::pixel(&b.shadings, i));
-            out.gt.extend_from_slice(&b.gt[3 * i..3 * i + 3]);
-            out.seg.push(b.seg[i]);
-            if !b.part.is_empty() {
-                out.part.push(b.part[i]);
-            }
-            if !b.cap.is_empty() {
-                out.cap.extend_from_slice(&b.cap[3 * i..3 * i + 3]);
-            }
+        let at = |i: &u32| *i as usize;
+        /// `width` values per entry of `src`, gathered at `idx`.
+        fn rows<T: Copy + Default + Send + Sync>(src: &[T], idx: &[u32], width: usize) -> Vec<T> {
+            let mut out = vec![T::default(); idx.len() * width];
+            out.par_chunks_mut(width * 256)
+                .zip(idx.par_chunks(256))
+                .for_each(|(o, ix)| {
+                    for (row, &i) in o.chunks_exact_mut(width).zip(ix) {
+                        let i = i as usize;
+                        row.copy_from_slice(&src[width * i..width * (i + 1)]);
+                    }
+                });
+            out
         }
-        out
+        Batch {
+            x_unit: idx.par_iter().map(|i| b.x_unit[at(i)]).collect(),
+            x_world: idx.par_iter().map(|i| b.x_world[at(i)]).collect(),
+            shadings: rows(&b.shadings, idx, ShadingLayout::DIM),
+            gt: rows(&b.gt, idx, 3),
+            seg: idx.par_iter().map(|i| b.seg[at(i)]).collect(),
+            cap: if b.cap.is_empty() {
+                Vec::new()
+            } else {
+                rows(&b.cap, idx, 3)
+            },
+            part: if b.part.is_empty() {
+                Vec::new()
+            } else {
+                idx.par_iter().map(|i| b.part[at(i)]).collect()
+            },
+        }
     }
 }
 
@@ -287,7 +295,6 @@ pub fn coverage<'a>(
     hits: &[ViewHits],
     keys: &[u64],
 ) -> Vec<Vec<f32>> {
-    use rayon::prelude::*;
     let n = COVER_GRID;
     cams.into_iter()
         .zip(hits)
@@ -428,20 +435,65 @@ mod tests {
         }
     }
 
-    #[test]
-    fn retain_keeps_the_chosen_entries_whole_and_in_order() {
-        let d = ShadingLayout::DIM;
-        let n = 10;
+    /// `n` entries whose values are made of their index i: positions (i, i + 0.1, i + 0.2) and
+    /// (−i, 2i, 3i), shadings 100 i + j, ground truth (i, 2i, 3i), segment i mod 3, clip levels
+    /// (i, none, i + 0.5).
+    fn numbered_batch(n: usize) -> Batch {
         let mut b = Batch::default();
         for i in 0..n {
             let f = i as f32;
             b.x_unit.push([f, f + 0.1, f + 0.2]);
             b.x_world.push([-f, 2.0 * f, 3.0 * f]);
-            b.shadings.extend((0..d).map(|j| f * 100.0 + j as f32));
+            b.shadings
+                .extend((0..ShadingLayout::DIM).map(|j| f * 100.0 + j as f32));
             b.gt.extend([f, f * 2.0, f * 3.0]);
             b.seg.push(i as i32 % 3);
             b.cap.extend([f, CAP_NONE, f + 0.5]);
         }
+        b
+    }
+
+    /// A batch of scattered entries, repeats included and longer than one parallel chunk,
+    /// holds each entry's values in the order asked for, parts and clip levels included.
+    #[test]
+    fn batch_gathers_the_entries_in_the_order_asked() {
+        let n = 700u32;
+        let mut store = PixelStore {
+            pixels: numbered_batch(n as usize),
+            origin: (0..n).map(|i| (0, i)).collect(),
+            tri: (0..n).collect(),
+        };
+        store.set_parts(&PartMap::from_labels(
+            &(0..n as i32).map(|t| t % 4).collect::<Vec<_>>(),
+        ));
+        let idx: Vec<u32> = (0..900u32).map(|k| (k * 397 + 11) % n).collect();
+        let got = store.batch(&idx);
+        assert_eq!(got.len(), idx.len());
+        for (k, &i) in idx.iter().enumerate() {
+            let (i, f) = (i as usize, i as f32);
+            assert_eq!(got.x_unit[k], [f, f + 0.1, f + 0.2], "entry {k}");
+            assert_eq!(got.x_world[k], [-f, 2.0 * f, 3.0 * f]);
+            assert_eq!(
+                ShadingLayout::pixel(&got.shadings, k),
+                ShadingLayout::pixel(&store.pixels.shadings, i)
+            );
+            assert_eq!(got.gt[3 * k..3 * k + 3], [f, 2.0 * f, 3.0 * f]);
+            assert_eq!(got.seg[k], i as i32 % 3);
+            assert_eq!(got.cap[3 * k..3 * k + 3], [f, CAP_NONE, f + 0.5]);
+            assert_eq!(got.part[k], store.pixels.part[i]);
+        }
+        // Without clip levels or parts, the batch has none either.
+        store.pixels.cap.clear();
+        store.pixels.part.clear();
+        let plain = store.batch(&idx);
+        assert!(plain.cap.is_empty() && plain.part.is_empty());
+        assert_eq!(plain.shadings, got.shadings);
+    }
+
+    #[test]
+    fn retain_keeps_the_chosen_entries_whole_and_in_order() {
+        let n = 10;
+        let b = numbered_batch(n);
         let origin: Vec<(u32, u32)> = (0..n as u32).map(|i| (i % 2, i)).collect();
         let tri: Vec<u32> = (0..n as u32).map(|i| 3 * i).collect();
         let mut store = PixelStore {
