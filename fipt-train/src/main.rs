@@ -118,6 +118,11 @@ enum Cmd {
         /// Print landscape.json to stdout instead of tables.
         #[arg(long)]
         json: bool,
+        /// With `train.min_coverage` τ > 0: measure a pixel's coverage by the plane of the mesh
+        /// its centre ray hits instead of by its part, so that pixels split between two faces
+        /// of one part (a box's edge) leave too.
+        #[arg(long)]
+        cover_planes: bool,
     },
     /// Recompute the metrics from the maps a previous `run` saved (or, with --model, from a
     /// scene model's predictions).
@@ -536,9 +541,15 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             oracle,
             fitted,
             json,
+            cover_planes,
         } => {
             let cfg = job.config()?;
-            let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, oracle, fitted, json)?;
+            let what = pipeline::landscape_cmd::Tables {
+                oracle,
+                fitted,
+                cover_planes,
+            };
+            let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, what, json)?;
             if json {
                 println!(
                     "{}",

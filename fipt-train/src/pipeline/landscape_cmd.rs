@@ -12,21 +12,36 @@ use crate::output::write_json;
 use anyhow::Result;
 use std::path::Path;
 
+/// Which tables `landscapes` adds to the baked and refined shadings' and how it chooses pixels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Tables {
+    /// The oracle shadings' table (computed and cached).
+    pub oracle: bool,
+    /// Every table also at the fitted model's base colour and metallic.
+    pub fitted: bool,
+    /// Coverage measured per plane of the mesh instead of per part.
+    pub cover_planes: bool,
+}
+
 /// `fipt-train landscape`: the per-part loss landscape of the baked shadings, of every refined
-/// round cached in `out/cache`, and with `oracle` of the oracle shadings; written to
-/// `out/landscape.json` and returned as (shadings name, table). With `fitted`, every table also
-/// sweeps σ at the base colour and metallic of the model `run` left in `out/maps/train`, and
-/// gives that model's own data term. Every table leaves out the pixels within
+/// round cached in `out/cache`, and with `what.oracle` of the oracle shadings; written to
+/// `out/landscape.json` and returned as (shadings name, table). With `what.fitted`, every table
+/// also sweeps σ at the base colour and metallic of the model `run` left in `out/maps/train`,
+/// and gives that model's own data term. Every table leaves out the pixels within
 /// `refine.emitter_margin` of a true emitter's, and with `train.min_coverage` τ those that
-/// their part covers less than τ of.
+/// their part (with `what.cover_planes`, their plane of the mesh) covers less than τ of.
 pub fn landscapes(
     scene: &Path,
     out: &Path,
     cfg: &Config,
-    oracle: bool,
-    fitted: bool,
+    what: Tables,
     quiet: bool,
 ) -> Result<Vec<(String, Vec<PartLandscape>)>> {
+    let Tables {
+        oracle,
+        fitted,
+        cover_planes,
+    } = what;
     let opts = RunOptions {
         quiet,
         oracle,
@@ -53,15 +68,11 @@ pub fn landscapes(
     // The pixels the fits leave out: next to an emitter, and split between two parts (the
     // true parts' keys).
     let cover = (cfg.train.min_coverage > 0.0).then(|| {
-        let keys: Vec<u64> = ds.meta.as_ref().map_or_else(
-            || crate::ldr::edges::plane_keys(&ds.mesh),
-            |m| {
-                m.triangle_part(ds.mesh.num_triangles())
-                    .into_iter()
-                    .map(|p| p as u64)
-                    .collect()
-            },
-        );
+        let parts = ds
+            .meta
+            .as_ref()
+            .map(|m| m.triangle_part(ds.mesh.num_triangles()));
+        let keys = cover_keys(&ds.mesh, parts, cover_planes);
         let cams = ds.train.views.iter().map(|v| &v.camera);
         let c = super::pixels::coverage(&ctx.accel, cams, &baked.hits, &keys);
         (c, cfg.train.min_coverage)
@@ -110,6 +121,15 @@ pub fn landscapes(
         .collect();
     write_json(&out.join("landscape.json"), &json)?;
     Ok(tables)
+}
+
+/// The coverage keys per triangle: its true part (`parts`, from `scene_meta.json`), or with
+/// `planes` or without parts its plane of the mesh (`ldr::edges::plane_keys`).
+fn cover_keys(mesh: &fipt_core::scene::Mesh, parts: Option<Vec<usize>>, planes: bool) -> Vec<u64> {
+    match parts.filter(|_| !planes) {
+        Some(p) => p.into_iter().map(|p| p as u64).collect(),
+        None => crate::ldr::edges::plane_keys(mesh),
+    }
 }
 
 /// Prints `landscapes`' tables: per part the argmin over σ at the true a and m, and where a
@@ -162,6 +182,33 @@ pub fn print_tables(tables: &[(String, Vec<PartLandscape>)]) {
                     );
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cover_keys;
+    use fipt_core::scene::procedural::PartMesh;
+    use glam::Vec3;
+
+    /// One box part: by part every triangle shares a key; by plane the six faces get six keys,
+    /// the triangles of one face the same.
+    #[test]
+    fn cover_keys_split_a_part_into_its_faces_by_plane() {
+        let mut pm = PartMesh::default();
+        pm.cuboid("leg", Vec3::ZERO, Vec3::new(0.05, 0.7, 0.05), 2);
+        let n = pm.mesh.num_triangles();
+        let parts = Some(vec![3; n]);
+        let by_part = cover_keys(&pm.mesh, parts.clone(), false);
+        assert_eq!(by_part, vec![3u64; n]);
+        let by_plane = cover_keys(&pm.mesh, parts, true);
+        assert_eq!(by_plane, cover_keys(&pm.mesh, None, false));
+        let distinct: std::collections::BTreeSet<u64> = by_plane.iter().copied().collect();
+        assert_eq!(distinct.len(), 6);
+        // Each face is an n × n grid of two triangles a cell: 8 triangles a face.
+        for face in by_plane.chunks(n / 6) {
+            assert!(face.iter().all(|&k| k == face[0]));
         }
     }
 }
