@@ -301,3 +301,25 @@ fn values_out_of_range_beside_the_photos() {
     std::fs::write(&t, js.to_string()).unwrap();
     assert_fails(&d, &["transforms.json", "frame 1", "degenerate axes"]);
 }
+
+/// `landscape --cover-planes` without `train.min_coverage` fails before reading the scene,
+/// naming the key, and writes nothing.
+#[test]
+fn cover_planes_without_min_coverage() {
+    let d = valid_scene("cover-planes");
+    let out_dir = fresh_dir("cover-planes-out");
+    let out = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
+        .args(["landscape", "--cover-planes", "--scene"])
+        .arg(&d)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "expected exit 1, stderr: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.contains("train.min_coverage"), "stderr: {err}");
+    assert!(!out_dir.join("landscape.json").exists());
+    let _ = std::fs::remove_dir_all(&d);
+    let _ = std::fs::remove_dir_all(&out_dir);
+}

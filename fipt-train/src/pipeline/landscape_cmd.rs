@@ -42,6 +42,12 @@ pub fn landscapes(
         fitted,
         cover_planes,
     } = what;
+    if cover_planes && cfg.train.min_coverage <= 0.0 {
+        anyhow::bail!(
+            "--cover-planes needs train.min_coverage > 0 in the config (it is {})",
+            cfg.train.min_coverage
+        );
+    }
     let opts = RunOptions {
         quiet,
         oracle,
@@ -66,7 +72,7 @@ pub fn landscapes(
         }
     };
     // The pixels the fits leave out: next to an emitter, and split between two parts (the
-    // true parts' keys).
+    // true parts' keys; with `cover_planes`, two planes of the mesh).
     let cover = (cfg.train.min_coverage > 0.0).then(|| {
         let parts = ds
             .meta
@@ -206,7 +212,7 @@ mod tests {
         assert_eq!(by_plane, cover_keys(&pm.mesh, None, false));
         let distinct: std::collections::BTreeSet<u64> = by_plane.iter().copied().collect();
         assert_eq!(distinct.len(), 6);
-        // Each face is an n × n grid of two triangles a cell: 8 triangles a face.
+        // Each face is a 2 × 2 grid of two triangles a cell: 8 triangles a face.
         for face in by_plane.chunks(n / 6) {
             assert!(face.iter().all(|&k| k == face[0]));
         }
