@@ -64,11 +64,11 @@ fn valid_scene(name: &str) -> PathBuf {
     d
 }
 
-/// Runs `fipt-train check` and asserts a clean failure whose message has every `needle`.
-fn assert_fails(scene: &Path, needles: &[&str]) {
+/// Runs `fipt-train` with `args` and asserts a clean failure (exit 1, no panic) whose message
+/// has every `needle`.
+fn assert_cli_fails(args: &[&std::ffi::OsStr], needles: &[&str]) {
     let out = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
-        .args(["check", "--scene"])
-        .arg(scene)
+        .args(args)
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -77,6 +77,14 @@ fn assert_fails(scene: &Path, needles: &[&str]) {
     for n in needles {
         assert!(err.contains(n), "stderr lacks '{n}': {err}");
     }
+}
+
+/// Runs `fipt-train check` and asserts a clean failure whose message has every `needle`.
+fn assert_fails(scene: &Path, needles: &[&str]) {
+    assert_cli_fails(
+        &["check".as_ref(), "--scene".as_ref(), scene.as_os_str()],
+        needles,
+    );
     let _ = std::fs::remove_dir_all(scene);
 }
 
@@ -308,17 +316,15 @@ fn values_out_of_range_beside_the_photos() {
 fn cover_planes_without_min_coverage() {
     let d = valid_scene("cover-planes");
     let out_dir = fresh_dir("cover-planes-out");
-    let out = Command::new(env!("CARGO_BIN_EXE_fipt-train"))
-        .args(["landscape", "--cover-planes", "--scene"])
-        .arg(&d)
-        .arg("--out")
-        .arg(&out_dir)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "expected exit 1, stderr: {err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(err.contains("train.min_coverage"), "stderr: {err}");
+    let args = [
+        "landscape".as_ref(),
+        "--cover-planes".as_ref(),
+        "--scene".as_ref(),
+        d.as_os_str(),
+        "--out".as_ref(),
+        out_dir.as_os_str(),
+    ];
+    assert_cli_fails(&args, &["train.min_coverage"]);
     assert!(!out_dir.join("landscape.json").exists());
     let _ = std::fs::remove_dir_all(&d);
     let _ = std::fs::remove_dir_all(&out_dir);
