@@ -41,7 +41,7 @@ fn gt_render_of_baked_shadings_matches_images() {
         .map(|(v, h)| BakeView {
             hits: h,
             image: &v.image.data,
-            focal: v.camera.fx as f32,
+            camera: &v.camera,
         })
         .collect();
     let lf = build_light_field(&views, &ds.mesh, cfg.voxel_res, cfg.fill_rings);
@@ -51,10 +51,10 @@ fn gt_render_of_baked_shadings_matches_images() {
         .map(|&k| BakeView {
             hits: views[k].hits,
             image: views[k].image,
-            focal: views[k].focal,
+            camera: views[k].camera,
         })
         .collect();
-    let baked = bake_views(&accel, &lf, &subset, &cfg, &|_| true).unwrap();
+    let baked = bake_views(&accel, &lf, &subset, &cfg, None, &|_| true).unwrap();
     let scores: Vec<_> = picked
         .iter()
         .zip(&baked.shadings)

@@ -7,7 +7,7 @@
 use anyhow::{Context, Result};
 use fipt_bake::integrators::bake::BakeConfig;
 use fipt_core::io::{Fnv64, Part, write_parts_atomic};
-use fipt_core::scene::{Dataset, Image};
+use fipt_core::scene::{Dataset, Image, MapKind};
 use fipt_core::shading::ShadingLayout;
 use std::io::Read;
 use std::path::Path;
@@ -57,6 +57,14 @@ pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> Result<u64> {
             h.bytes(&x.to_le_bytes());
         }
         h.f32s(&v.image.data);
+        // The footprint's parts come from the label maps (`bake::part_keys`).
+        if cfg.footprint > 0 {
+            for kind in [MapKind::IndexMA, MapKind::Segmentation] {
+                for l in v.labels(kind).into_iter().flatten() {
+                    h.bytes(&l.to_le_bytes());
+                }
+            }
+        }
     }
     Ok(h.finish())
 }

@@ -3,9 +3,11 @@
 //! obvhs into its compressed wide BVH (CWBVH) and traversed by obvhs. Only the one in use is
 //! built.
 //!
-//! Owns: BVH build, closest-hit and occlusion queries, pixel-centre ray casting (`raycast`).
+//! Owns: BVH build, closest-hit and occlusion queries, pixel-centre ray casting (`raycast`) and
+//! the pixels' sub-pixel footprints (`footprint`).
 //! Must not touch: shading.
 
+pub mod footprint;
 pub mod raycast;
 mod sah;
 mod wide;

@@ -10,10 +10,12 @@
 //! filter (see `filter`), tensors.
 
 use crate::accel::Accel;
+use crate::accel::footprint::{SurfacePoint, ViewFootprint};
 use crate::accel::raycast::ViewHits;
 use crate::lightfield::LightField;
 use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
 use fipt_core::rng::Rng;
+use fipt_core::scene::Camera;
 use fipt_core::shading::ShadingLayout;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -55,34 +57,45 @@ pub struct Baker<'a> {
 }
 
 impl Baker<'_> {
-    /// Shadings of one surface point seen from direction `wo` (unit, pointing away from the
-    /// surface), normal `n` facing `wo`; `out` receives `ShadingLayout::DIM` values. Returns the
-    /// number of rays cast (GGX samples below the horizon cast none).
+    /// Shadings of one pixel whose footprint is the surface points `pts` (at least one; each
+    /// seen from its direction `wo`, its normal facing `wo`); `out` receives
+    /// `ShadingLayout::DIM` values. Sample i of each estimator starts at point i mod |pts|, so
+    /// the estimate is the mean over the points' shadings. Returns the number of rays cast (GGX
+    /// samples below the horizon cast none).
     ///
-    /// All the point's directions are drawn first (in the estimators' order of random
+    /// All the pixel's directions are drawn first (in the estimators' order of random
     /// numbers), traced as one batch (`Accel::closest_many`), L′ looked up at every hit as one
     /// batch (`LightField::query_many`, whose cache misses overlap), then summed in the same
     /// order: the result equals tracing and looking up one ray at a time, bit for bit.
-    pub fn shade_point(&self, x: Vec3, n: Vec3, wo: Vec3, rng: &mut Rng, out: &mut [f32]) -> u64 {
-        let frame = Frame::new(n);
+    pub fn shade_point(&self, pts: &[SurfacePoint], rng: &mut Rng, out: &mut [f32]) -> u64 {
+        let frames: Vec<(Frame, Vec3)> = pts
+            .iter()
+            .map(|q| {
+                let f = Frame::new(q.n);
+                (f, f.to_local(q.wo))
+            })
+            .collect();
+        let at = |i: usize| (pts[i % pts.len()].x, &frames[i % pts.len()]);
         let nd = self.samples.diffuse;
         let mut rays: Vec<(Vec3, Vec3)> = Vec::with_capacity(self.samples.rays_per_pixel());
-        let push = |rays: &mut Vec<(Vec3, Vec3)>, w: Vec3| rays.push((x + w * RAY_EPS, w));
-        for _ in 0..nd {
+        let push = |rays: &mut Vec<(Vec3, Vec3)>, x: Vec3, w: Vec3| rays.push((x + w * RAY_EPS, w));
+        for i in 0..nd {
+            let (x, (frame, _)) = at(i);
             push(
                 &mut rays,
+                x,
                 frame.to_world(sample_cosine(rng.next_f32(), rng.next_f32())),
             );
         }
         // Per specular sample: its roughness level and GGX weights.
         let mut spec: Vec<(usize, f32, f32)> = Vec::with_capacity(rays.capacity() - nd);
-        let wo_l = frame.to_local(wo);
         for (j, sigma) in roughness_levels().into_iter().enumerate() {
-            for _ in 0..self.samples.specular[j] {
+            for i in 0..self.samples.specular[j] {
+                let (x, (frame, wo_l)) = at(i);
                 if let Some((wi, g0, g1)) =
-                    sample_specular(wo_l, sigma, rng.next_f32(), rng.next_f32())
+                    sample_specular(*wo_l, sigma, rng.next_f32(), rng.next_f32())
                 {
-                    push(&mut rays, frame.to_world(wi).normalize());
+                    push(&mut rays, x, frame.to_world(wi).normalize());
                     spec.push((j, g0, g1));
                 }
             }
@@ -113,27 +126,22 @@ impl Baker<'_> {
         rays.len() as u64
     }
 
-    /// Bakes every pixel of one view (`ShadingLayout::DIM` values per pixel, zeros where the
-    /// pixel-centre ray missed) and the number of rays cast. `view_key` distinguishes views in
-    /// the random streams.
-    pub fn bake_view(&self, hits: &ViewHits, seed: u64, view_key: u64) -> (Vec<f32>, u64) {
-        let mut out = vec![0f32; hits.num_pixels() * ShadingLayout::DIM];
+    /// Bakes every pixel of one view from its footprints (`ShadingLayout::DIM` values per
+    /// pixel, zeros where the pixel-centre ray missed) and the number of rays cast.
+    /// `view_key` distinguishes views in the random streams.
+    pub fn bake_view(&self, fp: &ViewFootprint, seed: u64, view_key: u64) -> (Vec<f32>, u64) {
+        let mut out = vec![0f32; fp.num_pixels() * ShadingLayout::DIM];
         let rays = out
             .par_chunks_mut(ShadingLayout::DIM)
             .enumerate()
             .with_min_len(16)
             .map(|(p, o)| {
-                if hits.tri[p] < 0 {
+                let pts = fp.of(p);
+                if pts.is_empty() {
                     return 0;
                 }
                 let mut rng = Rng::new(seed, (view_key << 32) | p as u64);
-                self.shade_point(
-                    hits.position[p],
-                    hits.normal[p],
-                    -hits.direction[p],
-                    &mut rng,
-                    o,
-                )
+                self.shade_point(pts, &mut rng, o)
             })
             .sum();
         (out, rays)
@@ -151,6 +159,11 @@ pub struct BakeConfig {
     #[serde(default = "default_fill_rings")]
     pub fill_rings: usize,
     pub samples: BakeSamples,
+    /// Shadings over the pixel's footprint: the estimators spread their samples over the hits
+    /// of an n×n grid of rays per pixel that land on the centre hit's part
+    /// (`accel::footprint`; 0: at the pixel-centre hit, the reference).
+    #[serde(default)]
+    pub footprint: usize,
     pub filter: crate::filter::FilterConfig,
     /// Random seed (set from the run's seed, not read from config files).
     #[serde(skip)]
@@ -163,6 +176,7 @@ impl Default for BakeConfig {
             voxel_res: 256,
             fill_rings: FILL_RINGS,
             samples: BakeSamples::default(),
+            footprint: 0,
             filter: Default::default(),
             seed: 0,
         }
@@ -181,8 +195,8 @@ pub struct BakeView<'a> {
     pub hits: &'a ViewHits,
     /// HDR image, 3 values per pixel.
     pub image: &'a [f32],
-    /// Focal length in pixels (for the filter's footprint).
-    pub focal: f32,
+    /// The view's camera (its focal length sets the filter's footprint).
+    pub camera: &'a Camera,
 }
 
 /// Builds L′ from the training views' pixel-centre hits and HDR values, its holes filled with
@@ -254,12 +268,14 @@ pub struct BakeOutput {
 
 /// Bakes (and filters) every view; `progress(k)` is called after view k and returns whether
 /// to go on: `false` before the last view stops the bake, which then returns None (nothing
-/// partial).
+/// partial). With `cfg.footprint` > 0, `parts` (a key per triangle) says which sub-pixel hits
+/// share the centre's part (`ViewFootprint::cast`); without it the centre hits serve.
 pub fn bake_views(
     accel: &Accel,
     lf: &LightField,
     views: &[BakeView],
     cfg: &BakeConfig,
+    parts: Option<&[u64]>,
     progress: &(dyn Fn(usize) -> bool + Sync),
 ) -> Option<BakeOutput> {
     let baker = Baker {
@@ -271,12 +287,17 @@ pub fn bake_views(
     let mut rays = 0;
     let mut shadings = Vec::with_capacity(views.len());
     for (k, v) in views.iter().enumerate() {
-        let (mut s, r) = baker.bake_view(v.hits, cfg.seed, k as u64);
+        let fp = match parts {
+            Some(parts) => ViewFootprint::cast(accel, v.camera, v.hits, parts, cfg.footprint),
+            None => ViewFootprint::centres(v.hits),
+        };
+        let (mut s, r) = baker.bake_view(&fp, cfg.seed, k as u64);
+        drop(fp);
         rays += r;
         crate::filter::filter_view(
             &cfg.filter,
             v.hits,
-            v.focal,
+            v.camera.fx as f32,
             &mut s,
             ShadingLayout::DIM,
             &groups,
@@ -401,7 +422,7 @@ pub(crate) mod tests {
         let runs = (0..12)
             .map(|k| {
                 let mut out = vec![0f32; ShadingLayout::DIM];
-                baker.shade_point(x, n, wo, &mut Rng::new(k, 0), &mut out);
+                baker.shade_point(&[SurfacePoint { x, n, wo }], &mut Rng::new(k, 0), &mut out);
                 out
             })
             .collect();
@@ -428,6 +449,73 @@ pub(crate) mod tests {
         (a / ra * (b / ra).atan() + b / rb * (a / rb).atan()) / std::f64::consts::TAU
     }
 
+    /// The form factor from floor point `x` of the unit box to its ceiling: four corner form
+    /// factors.
+    pub(crate) fn floor_form_factor(x: Vec3) -> f64 {
+        let (px, pz) = (x.x as f64, x.z as f64);
+        [
+            (px, pz),
+            (1.0 - px, pz),
+            (px, 1.0 - pz),
+            (1.0 - px, 1.0 - pz),
+        ]
+        .into_iter()
+        .map(|(a, b)| corner_form_factor(a, b))
+        .sum()
+    }
+
+    /// A footprint's shadings are the mean of its points': with only the ceiling lit, L_d over
+    /// two floor points and a ceiling point (which sees the dark floor) is the mean of the
+    /// floor points' form factors and 0. Shading all samples at the first point would give its
+    /// form factor (0.237, against a mean of 0.135).
+    #[test]
+    fn a_footprints_shadings_are_the_mean_over_its_points() {
+        let (accel, lf) = lit_box(&|x| if x.y > 0.999 { 1.0 } else { 0.0 });
+        let baker = Baker {
+            accel: &accel,
+            lf: &lf,
+            samples: BakeSamples {
+                diffuse: 3 * 2048,
+                specular: [0; 6],
+            },
+        };
+        let floor = [FLOOR_X, Vec3::new(0.1, 0.0, 0.1)];
+        let wo = Vec3::new(0.6, 0.8, 0.0);
+        let pts = [
+            SurfacePoint {
+                x: floor[0],
+                n: Vec3::Y,
+                wo,
+            },
+            SurfacePoint {
+                x: floor[1],
+                n: Vec3::Y,
+                wo,
+            },
+            SurfacePoint {
+                x: Vec3::new(0.5, 1.0, 0.5),
+                n: Vec3::NEG_Y,
+                wo: -wo,
+            },
+        ];
+        let est: Vec<f64> = (0..12)
+            .map(|k| {
+                let mut out = vec![0f32; ShadingLayout::DIM];
+                baker.shade_point(&pts, &mut Rng::new(k, 0), &mut out);
+                out[0] as f64
+            })
+            .collect();
+        let mean = est.iter().sum::<f64>() / est.len() as f64;
+        let var = est.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (est.len() - 1) as f64;
+        let stderr = (var / est.len() as f64).sqrt();
+        let exact = floor.iter().map(|&x| floor_form_factor(x)).sum::<f64>() / 3.0;
+        assert!(
+            (mean - exact).abs() <= 4.0 * stderr + 2e-3,
+            "L_d = {mean:.5} ± {stderr:.5}, want {exact:.5}"
+        );
+        assert!(4.0 * stderr + 2e-3 < 0.02, "stderr {stderr}");
+    }
+
     /// Only the ceiling of the box (y = 1) is lit, with L′ = 1: then L_d at a floor point is the
     /// form factor to the unit ceiling square, the sum of four corner form factors (0.2368 at
     /// (0.43, 0.57)). A sampler that drops the cosine, or a wrong pdf, misses it by far: uniform
@@ -440,16 +528,7 @@ pub(crate) mod tests {
         let mean = est.iter().sum::<f64>() / est.len() as f64;
         let var = est.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (est.len() - 1) as f64;
         let stderr = (var / est.len() as f64).sqrt();
-        let (px, pz) = (FLOOR_X.x as f64, FLOOR_X.z as f64);
-        let exact: f64 = [
-            (px, pz),
-            (1.0 - px, pz),
-            (px, 1.0 - pz),
-            (1.0 - px, 1.0 - pz),
-        ]
-        .into_iter()
-        .map(|(a, b)| corner_form_factor(a, b))
-        .sum();
+        let exact = floor_form_factor(FLOOR_X);
         assert!(
             (mean - exact).abs() <= 4.0 * stderr + 2e-3,
             "L_d = {mean:.5} ± {stderr:.5}, form factor {exact:.5}"
@@ -529,7 +608,7 @@ pub(crate) mod tests {
         let views = [BakeView {
             hits: &hits,
             image: &image,
-            focal: cam.fx as f32,
+            camera: &cam,
         }];
         let kept = build_light_field(&views, &room.mesh, 32, 8);
         let left = build_light_field_without(&views, &room.mesh, 32, 8, &|_, p| bright(p));
@@ -555,7 +634,8 @@ pub(crate) mod tests {
         );
     }
 
-    /// Same seed → bit-identical shadings whatever the thread count.
+    /// Same seed → bit-identical shadings whatever the thread count, with and without a
+    /// footprint.
     #[test]
     fn bake_is_deterministic_across_thread_counts() {
         let (room, accel, cam, hits) = room_view(24, 18);
@@ -565,32 +645,39 @@ pub(crate) mod tests {
         let views = [BakeView {
             hits: &hits,
             image: &image,
-            focal: cam.fx as f32,
+            camera: &cam,
         }];
         let lf = build_light_field(&views, &room.mesh, 32, 1);
-        let cfg = BakeConfig {
-            voxel_res: 32,
-            samples: BakeSamples {
-                diffuse: 16,
-                specular: [8; 6],
-            },
-            ..Default::default()
-        };
-        let run = |threads: usize| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap()
-                .install(|| bake_views(&accel, &lf, &views, &cfg, &|_| true).unwrap())
-        };
-        let (a, b) = (run(1), run(2));
-        assert_eq!(a.rays, b.rays);
-        let (a, b) = (a.shadings, b.shadings);
-        assert!(a[0].iter().any(|v| *v > 0.0));
-        assert_eq!(
-            a[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-            b[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>()
-        );
+        // Every second triangle starts a part: sub-pixel hits on both sides of some edges.
+        let keys: Vec<u64> = (0..room.mesh.num_triangles() as u64)
+            .map(|t| t / 2)
+            .collect();
+        for (footprint, parts) in [(0, None), (2, Some(keys.as_slice()))] {
+            let cfg = BakeConfig {
+                voxel_res: 32,
+                samples: BakeSamples {
+                    diffuse: 16,
+                    specular: [8; 6],
+                },
+                footprint,
+                ..Default::default()
+            };
+            let run = |threads: usize| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| bake_views(&accel, &lf, &views, &cfg, parts, &|_| true).unwrap())
+            };
+            let (a, b) = (run(1), run(2));
+            assert_eq!(a.rays, b.rays);
+            let (a, b) = (a.shadings, b.shadings);
+            assert!(a[0].iter().any(|v| *v > 0.0));
+            assert_eq!(
+                a[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                b[0].iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            );
+        }
     }
 
     /// The half-vector quadrature agrees with a plain quadrature over ω_i for a rough lobe.

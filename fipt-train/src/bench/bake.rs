@@ -45,18 +45,18 @@ pub fn bake(as_json: bool, reps: usize) -> Result<()> {
         .map(|((h, i), c)| BakeView {
             hits: h,
             image: i,
-            focal: c.fx as f32,
+            camera: c,
         })
         .collect();
     let cfg = BakeConfig::default();
     let lf = build_light_field(&views, &room.mesh, cfg.voxel_res, cfg.fill_rings);
     // Rays actually cast (GGX samples below the horizon cast none); the same every repetition.
-    let rays = bake_views(&accel, &lf, &views, &cfg, &|_| true)
+    let rays = bake_views(&accel, &lf, &views, &cfg, None, &|_| true)
         .ok_or_else(|| anyhow::anyhow!("bake stopped"))?
         .rays;
     let time = |threads: usize| -> Result<Throughput> {
         let times = time_on_pool(threads, reps, &|| {
-            bake_views(&accel, &lf, &views, &cfg, &|_| true);
+            bake_views(&accel, &lf, &views, &cfg, None, &|_| true);
         })?;
         Ok(Throughput::of(rays, times))
     };

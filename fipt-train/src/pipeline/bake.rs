@@ -10,7 +10,7 @@ use fipt_bake::integrators::bake::{
 };
 use fipt_bake::lightfield::LightField;
 use fipt_bake::{Accel, ViewHits, cast_view};
-use fipt_core::scene::Split;
+use fipt_core::scene::{MapKind, Mesh, Split};
 
 /// The products of the bake for one split.
 pub struct Baked {
@@ -23,7 +23,7 @@ pub struct Baked {
 }
 
 /// Casts every pixel-centre ray of a split.
-pub fn cast_split(accel: &Accel, mesh: &fipt_core::scene::Mesh, split: &Split) -> Vec<ViewHits> {
+pub fn cast_split(accel: &Accel, mesh: &Mesh, split: &Split) -> Vec<ViewHits> {
     split
         .views
         .iter()
@@ -34,7 +34,7 @@ pub fn cast_split(accel: &Accel, mesh: &fipt_core::scene::Mesh, split: &Split) -
 /// Bakes the training split.
 pub fn bake(
     accel: &Accel,
-    mesh: &fipt_core::scene::Mesh,
+    mesh: &Mesh,
     train: &Split,
     cfg: &BakeConfig,
     show_progress: bool,
@@ -42,9 +42,10 @@ pub fn bake(
     let hits = cast_split(accel, mesh, train);
     let views = train_views(train, &hits);
     let light_field = build_light_field(&views, mesh, cfg.voxel_res, cfg.fill_rings);
+    let parts = (cfg.footprint > 0).then(|| part_keys(mesh, train, &hits));
     let pb = progress_bar(views.len() as u64, "bake", show_progress);
     // Ctrl-C stops after the current view (`interrupt`).
-    let baked = bake_views(accel, &light_field, &views, cfg, &|_| {
+    let baked = bake_views(accel, &light_field, &views, cfg, parts.as_deref(), &|_| {
         pb.inc(1);
         !crate::interrupt::requested()
     });
@@ -60,6 +61,40 @@ pub fn bake(
         rays: baked.rays,
     })
 }
+
+/// Per triangle, the key of its part for the shadings' footprint (`bake.footprint`,
+/// `refine.paths.footprint`): the majority label of the pixel-centre hits on it
+/// (`segfuse::fuse_labels`) in the training split's part maps, else in its semantic maps; the
+/// triangle's plane of the mesh (`ldr::edges::plane_keys`) without maps or votes.
+pub fn part_keys(mesh: &Mesh, train: &Split, hits: &[ViewHits]) -> Vec<u64> {
+    let planes = crate::ldr::edges::plane_keys(mesh);
+    let kind = [MapKind::IndexMA, MapKind::Segmentation]
+        .into_iter()
+        .find(|&k| train.has_map(k));
+    let Some(kind) = kind else {
+        return planes;
+    };
+    let labels: Vec<Vec<i32>> = train
+        .views
+        .iter()
+        .map(|v| v.labels(kind).unwrap_or_default())
+        .collect();
+    let fused = fipt_bake::segfuse::fuse_labels(mesh.num_triangles(), hits, &labels, None);
+    fused
+        .into_iter()
+        .zip(planes)
+        .map(|(l, plane)| {
+            if l == fipt_bake::segfuse::UNLABELLED {
+                plane
+            } else {
+                LABEL_KEY | l as u32 as u64
+            }
+        })
+        .collect()
+}
+
+/// Marks a part key that is a label, apart from the planes' keys.
+const LABEL_KEY: u64 = 1 << 63;
 
 /// The bake with the on-disk cache: loads `out/cache/shadings.bin` when its key matches, else
 /// bakes and writes it. Returns the products and whether they came from the cache.
@@ -154,7 +189,7 @@ fn train_views<'a>(train: &'a Split, hits: &'a [ViewHits]) -> Vec<BakeView<'a>> 
         .map(|(v, h)| BakeView {
             hits: h,
             image: &v.image.data,
-            focal: v.camera.fx as f32,
+            camera: &v.camera,
         })
         .collect()
 }

@@ -13,6 +13,7 @@ use super::pixels::PixelStore;
 use crate::learned::LearnedMaterials;
 use crate::progress::progress_bar;
 use fipt_bake::Accel;
+use fipt_bake::accel::footprint::ViewFootprint;
 use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathScene, PathStats, RadianceCache};
 use fipt_bake::integrators::refine::{RefineConfig, refine_view};
@@ -162,6 +163,8 @@ pub fn refine_with(
             min_roughness: cfg.cache_roughness,
         }),
     };
+    let parts = (cfg.footprint > 0)
+        .then(|| super::bake::part_keys(&job.ds.mesh, &job.ds.train, &baked.hits));
     let pb = progress_bar(job.views.len() as u64, "refine", job.show_progress);
     let mut stats = PathStats::default();
     let mut shadings = Vec::with_capacity(job.views.len());
@@ -175,7 +178,11 @@ pub fn refine_with(
             .into());
         }
         let (v, h) = (&job.ds.train.views[k], &baked.hits[k]);
-        let (s, st) = refine_view(&scene, h, v.camera.fx as f32, cfg, k as u64);
+        let fp = match &parts {
+            Some(parts) => ViewFootprint::cast(job.accel, &v.camera, h, parts, cfg.footprint),
+            None => ViewFootprint::centres(h),
+        };
+        let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64);
         stats.add(&st);
         pb.inc(1);
         shadings.push(s);
