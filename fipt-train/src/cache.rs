@@ -57,12 +57,11 @@ pub fn cache_key(ds: &Dataset, cfg: &BakeConfig) -> Result<u64> {
             h.bytes(&x.to_le_bytes());
         }
         h.f32s(&v.image.data);
-        // The footprint's parts come from the label maps (`bake::part_keys`).
-        if cfg.footprint > 0 {
-            for kind in [MapKind::IndexMA, MapKind::Segmentation] {
-                for l in v.labels(kind).into_iter().flatten() {
-                    h.bytes(&l.to_le_bytes());
-                }
+        // The footprints' parts come from the label maps (`bake::part_keys`), in the bake
+        // and in the refinements and oracle, whose keys start from this one.
+        for kind in [MapKind::IndexMA, MapKind::Segmentation] {
+            for l in v.labels(kind).into_iter().flatten() {
+                h.bytes(&l.to_le_bytes());
             }
         }
     }

@@ -793,7 +793,7 @@ fn validate_bake(b: &BakeConfig) -> Result<()> {
         "must be a multiple of 8 in [8, 4096]",
     )?;
     check(b.fill_rings <= 64, "bake.fill_rings", "must be in [0, 64]")?;
-    check(b.footprint <= 64, "bake.footprint", "must be in [0, 64]")?;
+    check(b.footprint <= 8, "bake.footprint", "must be in [0, 8]")?;
     check(
         b.samples.diffuse >= 1,
         "bake.samples.diffuse",
@@ -990,9 +990,9 @@ fn validate_refine(refine: &RefineSection, train_lambda_d: f32) -> Result<()> {
     )?;
     check(r.wave >= 1, "refine.paths.wave", "must be >= 1")?;
     check(
-        r.footprint <= 64,
+        r.footprint <= 8,
         "refine.paths.footprint",
-        "must be in [0, 64]",
+        "must be in [0, 8]",
     )?;
     if let Some(l) = refine.lambda_d {
         check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;

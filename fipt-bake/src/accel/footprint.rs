@@ -98,6 +98,13 @@ impl ViewFootprint {
     }
 }
 
+/// The point that sample `i` of an estimator of `count` samples starts from, among `k` points:
+/// ⌊i·k / count⌋. The points take equal shares of the samples to within one, spread over the
+/// whole grid when there are fewer samples than points; with one point, always 0.
+pub fn point_of_sample(i: usize, count: usize, k: usize) -> usize {
+    i * k / count.max(1)
+}
+
 /// Pixel `p`'s centre hit as a surface point (None on a miss).
 fn centre(hits: &ViewHits, p: usize) -> Option<SurfacePoint> {
     (hits.tri[p] >= 0).then(|| SurfacePoint {
@@ -182,6 +189,25 @@ mod tests {
             }]
         );
         assert_eq!(c.num_pixels(), hits.num_pixels());
+    }
+
+    #[test]
+    fn samples_spread_evenly_over_the_points() {
+        let share = |count: usize, k: usize| {
+            let mut n = vec![0; k];
+            for i in 0..count {
+                n[point_of_sample(i, count, k)] += 1;
+            }
+            n
+        };
+        assert_eq!(share(64, 16), vec![4; 16]);
+        let uneven = share(64, 12);
+        assert!(uneven.iter().all(|&c| c == 5 || c == 6), "{uneven:?}");
+        // Fewer samples than points: every other point, over the whole grid.
+        let few = share(32, 64);
+        assert_eq!(few.iter().sum::<usize>(), 32);
+        assert!(few.iter().step_by(2).all(|&c| c == 1));
+        assert_eq!(share(7, 1), vec![7]);
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! The shading bake (paper §4.2, Eq. 9 for the integrals of Eq. 6; reference §2.2): per
 //! training pixel, the diffuse shading L_d and the specular shadings L_s0, L_s1 at the roughness
 //! levels linspace(0.02, 1, 6), each a Monte Carlo mean of L′ at the first hit of secondary rays
-//! from x + ε·ω.
+//! from x + ε·ω: x the pixel-centre hit, or with `BakeConfig::footprint` the points of the
+//! pixel's footprint on its part (`accel::footprint`).
 //!
 //! Random numbers come from (seed, view, pixel), so results are bit-identical for any thread
 //! count.
@@ -10,7 +11,7 @@
 //! filter (see `filter`), tensors.
 
 use crate::accel::Accel;
-use crate::accel::footprint::{SurfacePoint, ViewFootprint};
+use crate::accel::footprint::{SurfacePoint, ViewFootprint, point_of_sample};
 use crate::accel::raycast::ViewHits;
 use crate::lightfield::LightField;
 use fipt_core::brdf::{Frame, ROUGHNESS_LEVELS, roughness_levels, sample_cosine, sample_specular};
@@ -59,8 +60,8 @@ pub struct Baker<'a> {
 impl Baker<'_> {
     /// Shadings of one pixel whose footprint is the surface points `pts` (at least one; each
     /// seen from its direction `wo`, its normal facing `wo`); `out` receives
-    /// `ShadingLayout::DIM` values. Sample i of each estimator starts at point i mod |pts|, so
-    /// the estimate is the mean over the points' shadings. Returns the number of rays cast (GGX
+    /// `ShadingLayout::DIM` values. The samples of each estimator share the points equally
+    /// (`point_of_sample`), so the estimate is the mean over the points' shadings. Returns the number of rays cast (GGX
     /// samples below the horizon cast none).
     ///
     /// All the pixel's directions are drawn first (in the estimators' order of random
@@ -75,12 +76,15 @@ impl Baker<'_> {
                 (f, f.to_local(q.wo))
             })
             .collect();
-        let at = |i: usize| (pts[i % pts.len()].x, &frames[i % pts.len()]);
+        let at = |i: usize, count: usize| {
+            let k = point_of_sample(i, count, pts.len());
+            (pts[k].x, &frames[k])
+        };
         let nd = self.samples.diffuse;
         let mut rays: Vec<(Vec3, Vec3)> = Vec::with_capacity(self.samples.rays_per_pixel());
         let push = |rays: &mut Vec<(Vec3, Vec3)>, x: Vec3, w: Vec3| rays.push((x + w * RAY_EPS, w));
         for i in 0..nd {
-            let (x, (frame, _)) = at(i);
+            let (x, (frame, _)) = at(i, nd);
             push(
                 &mut rays,
                 x,
@@ -91,7 +95,7 @@ impl Baker<'_> {
         let mut spec: Vec<(usize, f32, f32)> = Vec::with_capacity(rays.capacity() - nd);
         for (j, sigma) in roughness_levels().into_iter().enumerate() {
             for i in 0..self.samples.specular[j] {
-                let (x, (frame, wo_l)) = at(i);
+                let (x, (frame, wo_l)) = at(i, self.samples.specular[j]);
                 if let Some((wi, g0, g1)) =
                     sample_specular(*wo_l, sigma, rng.next_f32(), rng.next_f32())
                 {

@@ -3,15 +3,15 @@
 //! in place of the bake's one-bounce L′ lookups (Eq. 9).
 //!
 //! Per pixel, from its pixel-centre first hit x (or its footprint's points, `footprint`):
-//! cosine-sampled rays for L_d and GGX-sampled rays
-//! at each roughness level σ_j with the weights g0, g1 for L_s0, L_s1 (exactly the bake's
-//! estimators); the radiance arriving along each ray is a path traced through the scene
-//! (`PathScene::trace_paths` from segment 2): emitters end paths and do not reflect, a hit on a
-//! surface rougher than the cache threshold returns L′ there, every other hit continues with
-//! next-event estimation (MIS) and BRDF sampling until `max_depth`. At x itself the reference
-//! samples the BRDF only; with `light_samples` > 0 the emitters are also sampled there, each
-//! estimator's two strategies combined by the power heuristic. The result is filtered as the
-//! bake's.
+//! cosine-sampled rays for L_d and GGX-sampled rays at each roughness level σ_j with the
+//! weights g0, g1 for L_s0, L_s1 (exactly the bake's estimators); the radiance arriving along
+//! each ray is a path traced through the scene (`PathScene::trace_paths` from segment 2):
+//! emitters end paths and do not reflect, a hit on a surface rougher than the cache threshold
+//! returns L′ there, every other hit continues with next-event estimation (MIS) and BRDF
+//! sampling until `max_depth`. At x itself the reference samples the BRDF only; with
+//! `light_samples` > 0 the emitters are also sampled there, each estimator's two strategies
+//! combined by the power heuristic. The result is filtered as the bake's. The oracle shadings
+//! (true materials and emitters) go through the same estimators and config.
 //!
 //! Random numbers come from (seed, view, pixel, sample): bit-identical for any thread count.
 //!
@@ -20,7 +20,7 @@
 
 use super::bake::{BakeSamples, RAY_EPS, filter_groups};
 use super::path::{PathConfig, PathScene, PathStart, PathStats, power_heuristic};
-use crate::accel::footprint::{SurfacePoint, ViewFootprint};
+use crate::accel::footprint::{SurfacePoint, ViewFootprint, point_of_sample};
 use crate::accel::raycast::ViewHits;
 use fipt_core::brdf::{
     Frame, LobeChoice, cosine_pdf, fresnel_split, g_schlick_over, ggx_d, ggx_reflection_pdf,
@@ -149,20 +149,20 @@ fn first_bounce(
     None
 }
 
-/// Sample `s`'s index within its estimator (L_d's samples, then each level's), which picks
-/// the footprint point it starts from.
-fn index_in_estimator(samples: &BakeSamples, s: usize) -> usize {
+/// Sample `s`'s index within its estimator (L_d's samples, then each level's) and that
+/// estimator's sample count, which pick the footprint point it starts from.
+fn index_in_estimator(samples: &BakeSamples, s: usize) -> (usize, usize) {
     if s < samples.diffuse {
-        return s;
+        return (s, samples.diffuse);
     }
     let mut k = s - samples.diffuse;
     for &n in &samples.specular {
         if k < n {
-            return k;
+            return (k, n);
         }
         k -= n;
     }
-    k
+    (k, 1)
 }
 
 /// The integrands of L_s0 and L_s1 at roughness σ for a direction ω_i (local frame), per unit
@@ -177,8 +177,8 @@ fn specular_integrands(wo: Vec3, wi: Vec3, sigma: f32) -> (f32, f32) {
     (base * f0, base * f1)
 }
 
-/// The light samples taken at one pixel's footprint: its points (light sample i at point
-/// i mod |pts|), how many light samples (`count`), and the estimators' BRDF sample counts
+/// The light samples taken at one pixel's footprint: its points (shared equally,
+/// `point_of_sample`), how many light samples (`count`), and the estimators' BRDF sample counts
 /// (`samples`) that the power heuristic weighs them against.
 #[derive(Clone, Copy)]
 struct LightQuery<'a> {
@@ -204,7 +204,7 @@ fn light_sampled(
     let nl = count as f32;
     let mut rays = 0;
     for i in 0..count {
-        let SurfacePoint { x, n, wo } = pts[i % pts.len()];
+        let SurfacePoint { x, n, wo } = pts[point_of_sample(i, count, pts.len())];
         let frame = Frame::new(n);
         let wo_l = frame.to_local(wo);
         let u = (rng.next_f32(), rng.next_f32(), rng.next_f32());
@@ -241,8 +241,8 @@ fn light_sampled(
 
 /// Refines the shadings of one view (`ShadingLayout::DIM` values per pixel, zeros where the
 /// pixel-centre ray missed), filtered; each pixel's samples start from the points of its
-/// footprint `fp` (sample i of an estimator at point i mod their count; `ViewFootprint::centres`
-/// for the reference). `view_key` separates views in the random streams and `focal` is the
+/// footprint `fp`, each estimator's shared equally (`point_of_sample`;
+/// `ViewFootprint::centres` for the reference). `view_key` separates views in the random streams and `focal` is the
 /// view's focal length in pixels (for the filter).
 pub fn refine_view(
     scene: &PathScene,
@@ -281,7 +281,8 @@ pub fn refine_view(
                 let (p, s) = (px[i / per_pixel], i % per_pixel);
                 let mut rng = Rng::new(cfg.seed, (view_key << 44) | ((p as u64) << 20) | s as u64);
                 let pts = fp.of(p);
-                let q = pts[index_in_estimator(&cfg.samples, s) % pts.len()];
+                let (i, count) = index_in_estimator(&cfg.samples, s);
+                let q = pts[point_of_sample(i, count, pts.len())];
                 let frame = Frame::new(q.n);
                 let wo_l = frame.to_local(q.wo);
                 match first_bounce(&cfg.samples, s, &frame, wo_l, &mut rng) {
