@@ -40,11 +40,17 @@ impl ViewFootprint {
 
     /// The hits of an `n`×`n` grid of rays through each pixel's square
     /// (`Camera::grid_rays`) whose triangle has the centre hit's key in `parts` (one key per
-    /// triangle); the centre hit where none has. `n` = 0 gives `centres`.
-    pub fn cast(accel: &Accel, cam: &Camera, hits: &ViewHits, parts: &[u64], n: usize) -> Self {
-        if n == 0 {
+    /// triangle); the centre hit where none has. `n` = 0 or no `parts` gives `centres`.
+    pub fn cast(
+        accel: &Accel,
+        cam: &Camera,
+        hits: &ViewHits,
+        parts: Option<&[u64]>,
+        n: usize,
+    ) -> Self {
+        let Some(parts) = parts.filter(|_| n > 0) else {
             return Self::centres(hits);
-        }
+        };
         let w = hits.width;
         let lists: Vec<Vec<SurfacePoint>> = (0..hits.num_pixels())
             .into_par_iter()
@@ -158,13 +164,13 @@ mod tests {
         let on_centres_face = |q: &SurfacePoint| (q.n - centre_n).length() < 1e-6;
         // Wall, one face, the other face: each its own part.
         let own = [0, 0, 1, 1, 2, 2];
-        let fp = ViewFootprint::cast(&accel, &cam, &hits, &own, 4);
+        let fp = ViewFootprint::cast(&accel, &cam, &hits, Some(&own), 4);
         let pts = fp.of(p);
         assert_eq!(pts.len(), 12, "three columns of the grid");
         assert!(pts.iter().all(on_centres_face));
         // The box as one part: the other face's column joins.
         let boxed = [0, 0, 1, 1, 1, 1];
-        let fp = ViewFootprint::cast(&accel, &cam, &hits, &boxed, 4);
+        let fp = ViewFootprint::cast(&accel, &cam, &hits, Some(&boxed), 4);
         let pts = fp.of(p);
         assert_eq!(pts.len(), 16);
         assert_eq!(pts.iter().filter(|q| !on_centres_face(q)).count(), 4);
@@ -179,7 +185,7 @@ mod tests {
         assert_eq!(wall.len(), 16);
         assert!(wall.iter().all(|q| (q.x.z - 10.0).abs() < 1e-4));
         // Grid 0 gives the centre hit alone.
-        let c = ViewFootprint::cast(&accel, &cam, &hits, &boxed, 0);
+        let c = ViewFootprint::cast(&accel, &cam, &hits, Some(&boxed), 0);
         assert_eq!(
             c.of(p),
             [SurfacePoint {
@@ -215,7 +221,7 @@ mod tests {
         let (accel, cam, mesh) = corner_scene();
         let mut hits = crate::cast_view(&accel, &mesh, &cam);
         hits.tri[3] = -1;
-        let fp = ViewFootprint::cast(&accel, &cam, &hits, &[0; 6], 2);
+        let fp = ViewFootprint::cast(&accel, &cam, &hits, Some(&[0; 6]), 2);
         assert!(fp.of(3).is_empty());
         assert_eq!(fp.of(2).len(), 4);
     }

@@ -61,8 +61,8 @@ impl Baker<'_> {
     /// Shadings of one pixel whose footprint is the surface points `pts` (at least one; each
     /// seen from its direction `wo`, its normal facing `wo`); `out` receives
     /// `ShadingLayout::DIM` values. The samples of each estimator share the points equally
-    /// (`point_of_sample`), so the estimate is the mean over the points' shadings. Returns the number of rays cast (GGX
-    /// samples below the horizon cast none).
+    /// (`point_of_sample`), so the estimate is the mean over the points' shadings. Returns the
+    /// number of rays cast (GGX samples below the horizon cast none).
     ///
     /// All the pixel's directions are drawn first (in the estimators' order of random
     /// numbers), traced as one batch (`Accel::closest_many`), L′ looked up at every hit as one
@@ -291,10 +291,7 @@ pub fn bake_views(
     let mut rays = 0;
     let mut shadings = Vec::with_capacity(views.len());
     for (k, v) in views.iter().enumerate() {
-        let fp = match parts {
-            Some(parts) => ViewFootprint::cast(accel, v.camera, v.hits, parts, cfg.footprint),
-            None => ViewFootprint::centres(v.hits),
-        };
+        let fp = ViewFootprint::cast(accel, v.camera, v.hits, parts, cfg.footprint);
         let (mut s, r) = baker.bake_view(&fp, cfg.seed, k as u64);
         drop(fp);
         rays += r;

@@ -118,51 +118,44 @@ enum Slot {
     Specular(usize, f32, f32),
 }
 
-/// The first-bounce ray of sample `s` at a point (frame about the facing normal, outgoing
-/// direction in the local frame): its slot, world direction and solid-angle pdf, or None below
-/// the horizon.
+/// The first-bounce ray of a sample of L_d (`level` None) or of level j's L_s0, L_s1
+/// (`Some(j)`) at a point (frame about the facing normal, outgoing direction in the local
+/// frame): its slot, world direction and solid-angle pdf, or None below the horizon.
 fn first_bounce(
-    samples: &BakeSamples,
-    s: usize,
+    level: Option<usize>,
     frame: &Frame,
     wo_l: Vec3,
     rng: &mut Rng,
 ) -> Option<(Slot, Vec3, f32)> {
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
-    if s < samples.diffuse {
+    let Some(j) = level else {
         let wi = sample_cosine(u1, u2);
         return Some((Slot::Diffuse, frame.to_world(wi), cosine_pdf(wi.z)));
-    }
-    let mut k = s - samples.diffuse;
-    for (j, sigma) in roughness_levels().into_iter().enumerate() {
-        if k < samples.specular[j] {
-            let (wi, g0, g1) = sample_specular(wo_l, sigma, u1, u2)?;
-            let pdf = ggx_reflection_pdf(wo_l, wi, sigma);
-            return Some((
-                Slot::Specular(j, g0, g1),
-                frame.to_world(wi).normalize(),
-                pdf,
-            ));
-        }
-        k -= samples.specular[j];
-    }
-    None
+    };
+    let sigma = roughness_levels()[j];
+    let (wi, g0, g1) = sample_specular(wo_l, sigma, u1, u2)?;
+    let pdf = ggx_reflection_pdf(wo_l, wi, sigma);
+    Some((
+        Slot::Specular(j, g0, g1),
+        frame.to_world(wi).normalize(),
+        pdf,
+    ))
 }
 
-/// Sample `s`'s index within its estimator (L_d's samples, then each level's) and that
-/// estimator's sample count, which pick the footprint point it starts from.
-fn index_in_estimator(samples: &BakeSamples, s: usize) -> (usize, usize) {
+/// The estimator that sample `s` of a pixel feeds (L_d's samples first, then each level's:
+/// None for L_d, `Some(j)` for level j), the sample's index within it and its sample count.
+fn estimator_of(samples: &BakeSamples, s: usize) -> (Option<usize>, usize, usize) {
     if s < samples.diffuse {
-        return (s, samples.diffuse);
+        return (None, s, samples.diffuse);
     }
     let mut k = s - samples.diffuse;
-    for &n in &samples.specular {
+    for (j, &n) in samples.specular.iter().enumerate() {
         if k < n {
-            return (k, n);
+            return (Some(j), k, n);
         }
         k -= n;
     }
-    (k, 1)
+    unreachable!("sample {s} beyond the pixel's {}", samples.rays_per_pixel())
 }
 
 /// The integrands of L_s0 and L_s1 at roughness σ for a direction ω_i (local frame), per unit
@@ -242,8 +235,8 @@ fn light_sampled(
 /// Refines the shadings of one view (`ShadingLayout::DIM` values per pixel, zeros where the
 /// pixel-centre ray missed), filtered; each pixel's samples start from the points of its
 /// footprint `fp`, each estimator's shared equally (`point_of_sample`;
-/// `ViewFootprint::centres` for the reference). `view_key` separates views in the random streams and `focal` is the
-/// view's focal length in pixels (for the filter).
+/// `ViewFootprint::centres` for the reference). `view_key` separates views in the random
+/// streams and `focal` is the view's focal length in pixels (for the filter).
 pub fn refine_view(
     scene: &PathScene,
     hits: &ViewHits,
@@ -281,11 +274,11 @@ pub fn refine_view(
                 let (p, s) = (px[i / per_pixel], i % per_pixel);
                 let mut rng = Rng::new(cfg.seed, (view_key << 44) | ((p as u64) << 20) | s as u64);
                 let pts = fp.of(p);
-                let (i, count) = index_in_estimator(&cfg.samples, s);
+                let (level, i, count) = estimator_of(&cfg.samples, s);
                 let q = pts[point_of_sample(i, count, pts.len())];
                 let frame = Frame::new(q.n);
                 let wo_l = frame.to_local(q.wo);
-                match first_bounce(&cfg.samples, s, &frame, wo_l, &mut rng) {
+                match first_bounce(level, &frame, wo_l, &mut rng) {
                     Some((slot, wi, pdf)) => (
                         Some(slot),
                         Some(PathStart {
@@ -294,11 +287,7 @@ pub fn refine_view(
                             rng,
                             // MIS against the light samples, counts folded into the pdf.
                             pdf: if nl > 0 {
-                                let n = match slot {
-                                    Slot::Diffuse => cfg.samples.diffuse,
-                                    Slot::Specular(j, ..) => cfg.samples.specular[j],
-                                };
-                                n as f32 * pdf / nl as f32
+                                count as f32 * pdf / nl as f32
                             } else {
                                 0.0
                             },

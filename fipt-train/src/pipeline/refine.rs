@@ -178,10 +178,7 @@ pub fn refine_with(
             .into());
         }
         let (v, h) = (&job.ds.train.views[k], &baked.hits[k]);
-        let fp = match &parts {
-            Some(parts) => ViewFootprint::cast(job.accel, &v.camera, h, parts, cfg.footprint),
-            None => ViewFootprint::centres(h),
-        };
+        let fp = ViewFootprint::cast(job.accel, &v.camera, h, parts.as_deref(), cfg.footprint);
         let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64);
         stats.add(&st);
         pb.inc(1);
