@@ -599,7 +599,7 @@ impl Default for HopConfig {
             gain: 0.05,
             min_move: 0.25,
             steps: 0.15,
-            pull: 1e-2,
+            pull: 0.1,
             pixels: 4096,
             prior: 0.0,
             metal: true,
