@@ -248,6 +248,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "train.hop.patch_min_move", UNIT, "a roughness distance"),
     f(C, "train.hop.anchor", WEIGHT, "a loss weight (0: off)"),
     f(C, "train.hop.hold_metals", WEIGHT, "a loss weight (0: off)"),
+    f(C, "train.hop.patch_majority", closed(0.0, 10.0), "standard errors (or null: off)"),
     f(C, "emitters.samples_per_triangle", int(1.0, 1e5), "points"),
     f(C, "emitters.threshold", Range {
             hi_open: true,

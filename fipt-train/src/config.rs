@@ -591,6 +591,10 @@ pub struct HopConfig {
     /// names one, through the release phase in place of releasing it (0: released, like every
     /// other candidate but the patch candidates).
     pub hold_metals: f32,
+    /// A patch hypothesis counts only where most of its segment's surface prefers it: the
+    /// share of its pixels whose cube (`patch`) scores lower at the hypothesis than at the fit
+    /// may lie at most this many standard errors (0.5 / √cubes) below a half (null: off).
+    pub patch_majority: Option<f32>,
 }
 
 impl Default for HopConfig {
@@ -612,6 +616,7 @@ impl Default for HopConfig {
             settle: true,
             patch_dielectric: true,
             hold_metals: 0.1,
+            patch_majority: Some(2.0),
         }
     }
 }
@@ -939,6 +944,11 @@ impl HopConfig {
             check(v >= 0.0 && v.is_finite(), k, "must be >= 0")?;
         }
         check(h.pixels >= 1, "train.hop.pixels", "must be >= 1")?;
+        check(
+            h.patch_majority.is_none_or(|z| (0.0..=10.0).contains(&z)),
+            "train.hop.patch_majority",
+            "must be in [0, 10] or null",
+        )?;
         Ok(())
     }
 }

@@ -107,6 +107,11 @@ pub struct SegmentObjective {
     /// there, and the objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
+    /// How many of the patch hypothesis's cubes prefer its best σ to the fitted mean σ
+    /// (`patches::preference`): the share of the segment's pixels in those cubes, and the
+    /// effective number of cubes (None: not tried).
+    #[serde(default)]
+    pub patch_share: Option<(f64, f64)>,
     /// The σ the anchor held it at in place of its fitted one, with m 0 (`train.hop.settle`;
     /// None: its fitted σ and m, or not held).
     #[serde(default)]
@@ -403,6 +408,7 @@ fn checks(samples: &[SegmentSample], evals: &[SegmentEval]) -> Vec<SegmentObject
                 }),
                 carried: e.carried,
                 patch: None,
+                patch_share: None,
                 settled: None,
             }
         })
@@ -477,6 +483,7 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
     // dielectric, it names m 0 with `patch_dielectric`.
     if let Some((sigma, obj, base)) = c.patch
         && c.metallic < 0.5
+        && preferred(cfg, c.patch_share)
     {
         let m = cfg.patch_dielectric.then_some(0.0);
         options.push((Hypothesis::Patch, sigma, m, obj, base));
@@ -516,17 +523,41 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
         .collect()
 }
 
-/// The σ the anchor holds a segment at in place of its fitted one (`train.hop.settle`): on
-/// refined shadings, a dielectric's patch sweep minimum where it scores below the fit and lies
-/// within `min_move` of it (nearer than any hop goes; its data is flat there, and the prior
-/// decided where the fit left it). None: held at its fitted σ.
+/// Whether most of a segment's surface prefers its patch hypothesis (`train.hop.patch_majority`
+/// z): the share of its pixels whose cube scores lower at the hypothesis than at the fit lies
+/// no more than z standard errors of a fair coin's share, 0.5 / √(effective cubes), below a
+/// half. A hypothesis that lowers the sum on a few cubes, where the shadings are off, while
+/// most of the surface prefers the fit, does not count; a small part's few cubes cannot tell
+/// and pass. Null, or no share: every patch hypothesis passes.
+fn preferred(cfg: &HopConfig, share: Option<(f64, f64)>) -> bool {
+    match (cfg.patch_majority, share) {
+        (Some(z), Some((share, cubes))) if cubes > 0.0 => {
+            share >= 0.5 - z as f64 * 0.5 / cubes.sqrt()
+        }
+        _ => true,
+    }
+}
+
+/// The σ the anchor holds a segment at in place of its fitted one (`train.hop.settle`), with
+/// m 0: on refined shadings, a dielectric's patch sweep minimum where it scores below the fit
+/// and lies within `min_move` of it (nearer than any hop goes; its data is flat there, and the
+/// prior decided where the fit left it); its fitted σ where its patch hypothesis counts by
+/// gain and distance but most of its surface prefers the fit (`preferred`: the hypothesis is
+/// a dielectric's, and so is the fit it loses to). None: held at its fitted σ and m.
 fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> {
     if !(cfg.settle && refined && cfg.anchor > 0.0) || c.metallic >= 0.5 {
         return None;
     }
     let (sigma, obj, base) = c.patch?;
-    (obj.is_finite() && obj < base && (sigma - c.sigma).abs() < cfg.min_move as f64)
-        .then_some(sigma)
+    if !(obj.is_finite() && obj < base) {
+        return None;
+    }
+    let far = (sigma - c.sigma).abs();
+    if far < cfg.min_move as f64 {
+        return Some(sigma);
+    }
+    let counts = far >= cfg.patch_min_move as f64 && 1.0 - obj / base >= cfg.patch_gain as f64;
+    (counts && !preferred(cfg, c.patch_share)).then_some(c.sigma)
 }
 
 /// The σ and m the anchor holds a segment at: where it is settled, its patch hypothesis (the
@@ -583,7 +614,10 @@ pub fn hop(
         (plan.cfg.patch > 0.0).then(|| PatchSegments::new(store, plan.cfg.patch * plan.footprint));
     if let Some(p) = &patches {
         for row in &mut segments {
-            row.patch = p.profile(&tr.model, row.segment);
+            if let Some((best, share)) = p.profile(&tr.model, row.segment) {
+                row.patch = Some(best);
+                row.patch_share = Some(share);
+            }
             row.settled = settled(plan.cfg, plan.refined, row);
         }
     }
@@ -822,11 +856,15 @@ impl<'a> PatchSegments<'a> {
         Self { store, segments }
     }
 
-    /// The patch objective (mean per pixel) of segment `id` as a dielectric (m = 0: the
-    /// hypothesis is a dielectric of one σ) under the model's mask, at one common σ: each of
-    /// `sweep`, then the model's mean σ over the segment (the last value); None for a segment
-    /// without pixels.
-    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
+    /// Calls `f` with segment `id`'s pixels as a dielectric (m = 0: the hypothesis is a
+    /// dielectric of one σ) under the model's mask, their cubes and the model's mean σ over
+    /// them; None for a segment without pixels.
+    fn with_pixels<R>(
+        &self,
+        model: &FiptModel,
+        id: i32,
+        f: impl FnOnce(&[super::patches::PatchPixel], &[Vec<u32>], f32) -> R,
+    ) -> Option<R> {
         let (idx, cubes) = self.segments.get(&id)?;
         let b = self.store.batch(idx);
         let mat = model.material(&b.x_unit, &b.part);
@@ -841,21 +879,38 @@ impl<'a> PatchSegments<'a> {
             .collect();
         let n = idx.len().max(1) as f64;
         let mean = (mat.sigma.iter().map(|&s| s as f64).sum::<f64>() / n) as f32;
-        Some(
+        Some(f(&pixels, cubes, mean))
+    }
+
+    /// The patch objective (mean per pixel) of segment `id` (`with_pixels`) at one common σ:
+    /// each of `sweep`, then the model's mean σ over the segment (the last value).
+    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
+        self.with_pixels(model, id, |pixels, cubes, mean| {
+            let n = pixels.len().max(1) as f64;
             sweep
                 .iter()
                 .chain([&mean])
-                .map(|&s| super::patches::objective(&pixels, cubes, &move |_| s) / n)
-                .collect(),
-        )
+                .map(|&s| super::patches::objective(pixels, cubes, &move |_| s) / n)
+                .collect()
+        })
     }
 
-    /// The segment's best swept σ, the patch objective there, and at the model's mean σ.
-    fn profile(&self, model: &FiptModel, id: i32) -> Option<(f64, f64, f64)> {
-        let mut swept = self.profile_at(model, id, &sweep())?;
-        let at_mean = swept.pop()?;
-        let (best_sigma, best) = profile_min(&swept);
-        Some((best_sigma, best, at_mean))
+    /// The segment's best swept σ, the patch objective there, and at the model's mean σ; and
+    /// how many of its cubes prefer that best σ to the mean σ (`patches::preference`).
+    fn profile(&self, model: &FiptModel, id: i32) -> Option<((f64, f64, f64), (f64, f64))> {
+        use super::patches::{objective, per_cube, preference};
+        self.with_pixels(model, id, |pixels, cubes, mean| {
+            let n = pixels.len().max(1) as f64;
+            let per = |s: f32| per_cube(pixels, cubes, &move |_| s);
+            let swept: Vec<f64> = sweep()
+                .iter()
+                .map(|&s| objective(pixels, cubes, &move |_| s) / n)
+                .collect();
+            let (best_sigma, best) = profile_min(&swept);
+            let at_mean = per(mean);
+            let share = preference(cubes, &per(best_sigma as f32), &at_mean);
+            ((best_sigma, best, at_mean.iter().sum::<f64>() / n), share)
+        })
     }
 
     /// The patch objective at the model's mean σ (NaN for a segment without pixels).
@@ -1350,6 +1405,46 @@ mod tests {
         assert_eq!((d.len(), d[0].target, d[0].target_metallic), (1, 0.6, None));
     }
 
+    /// With `patch_majority` z, a patch hypothesis that lowers the sum but that fewer than half
+    /// of many cubes prefer does not count; over few cubes the same share cannot tell, and
+    /// counts; null lets every share count. A patch candidate that falls back after an undone
+    /// first hop is held to the same test.
+    #[test]
+    fn a_patch_hypothesis_needs_most_of_the_surface() {
+        let (cfg, mut rows) = one_flat_segment();
+        assert_eq!(cfg.patch_majority, Some(2.0));
+        rows[0].patch = Some((0.6, 0.97, 1.0));
+        let mut with = |cfg: &HopConfig, share: Option<(f64, f64)>| {
+            rows[0].patch_share = share;
+            candidates(cfg, &rows).len()
+        };
+        // 4000 cubes: a fair coin's share lies within 2 × 0.5 / √4000 ≈ 0.016 of a half.
+        assert_eq!(with(&cfg, Some((0.46, 4000.0))), 0);
+        assert_eq!(with(&cfg, Some((0.49, 4000.0))), 1);
+        assert_eq!(with(&cfg, Some((0.6, 4000.0))), 1);
+        // 16 cubes: the bound is 0.25.
+        assert_eq!(with(&cfg, Some((0.3, 16.0))), 1);
+        assert_eq!(with(&cfg, Some((0.2, 16.0))), 0);
+        assert_eq!(with(&cfg, None), 1);
+        let off = HopConfig {
+            patch_majority: None,
+            ..cfg.clone()
+        };
+        assert_eq!(with(&off, Some((0.1, 4000.0))), 1);
+        // The metal wins the first hop; its patch fallback passes the same test.
+        rows[0].metal = Some((0.3, 0.5, 1.0));
+        rows[0].metallic = 0.1;
+        let fallbacks = |share: (f64, f64)| {
+            let r = SegmentObjective {
+                patch_share: Some(share),
+                ..rows[0].clone()
+            };
+            patch_fallbacks(&cfg, &[r]).len()
+        };
+        assert_eq!(fallbacks((0.6, 4000.0)), 1);
+        assert_eq!(fallbacks((0.4, 4000.0)), 0);
+    }
+
     /// The data term (λ_d 0) of every sampled segment at `tr`'s model.
     fn data_at(tr: &Trainer, st: &PixelStore, samples: &[SegmentSample]) -> Vec<SegmentEval> {
         let prior = DiffusePrior {
@@ -1547,6 +1642,18 @@ mod tests {
         assert_eq!(settled(&cfg, true, &rows[0]), None);
         rows[0].patch = Some((0.5, 0.9, 1.0));
         assert_eq!(settled(&cfg, true, &rows[0]), None);
+        // That far hypothesis, where most of the surface prefers the fit (`patch_majority`):
+        // held at its fitted σ as a dielectric, m 0; without the test, as fitted.
+        let lost = SegmentObjective {
+            patch_share: Some((0.4, 4000.0)),
+            ..rows[0].clone()
+        };
+        assert_eq!(settled(&cfg, true, &lost), Some(0.8));
+        let untested = HopConfig {
+            patch_majority: None,
+            ..cfg.clone()
+        };
+        assert_eq!(settled(&untested, true, &lost), None);
         rows[0].patch = Some((0.62, 0.9, 1.0));
         rows[0].metallic = 0.7;
         assert_eq!(settled(&cfg, true, &rows[0]), None);

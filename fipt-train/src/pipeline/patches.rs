@@ -52,8 +52,17 @@ pub fn objective(
     cubes: &[Vec<u32>],
     sigma: &(dyn Fn(usize) -> f32 + Sync),
 ) -> f64 {
+    per_cube(pixels, cubes, sigma).iter().sum()
+}
+
+/// `objective`'s summand of every cube of `cubes`, in their order.
+pub fn per_cube(
+    pixels: &[PatchPixel],
+    cubes: &[Vec<u32>],
+    sigma: &(dyn Fn(usize) -> f32 + Sync),
+) -> Vec<f64> {
     use rayon::prelude::*;
-    let per: Vec<f64> = cubes
+    cubes
         .par_iter()
         .map(|cube| {
             let terms: Vec<([f32; 3], [f32; 3], &PatchPixel)> = cube
@@ -99,8 +108,29 @@ pub fn objective(
                 })
                 .sum::<f64>()
         })
-        .collect();
-    per.iter().sum()
+        .collect()
+}
+
+/// How many of a surface's cubes prefer σ hypothesis A to B: the share of the pixels whose
+/// cube scores lower at A (`at_a`, `per_cube` at A) than at B (`at_b`), and the effective
+/// number of cubes that share is a mean over, (Σ n)² / Σ n² for cubes of n pixels. A
+/// hypothesis that a few cubes carry (where the shadings are off, say) scores lower in sum
+/// but is preferred by fewer than half of them.
+pub fn preference(cubes: &[Vec<u32>], at_a: &[f64], at_b: &[f64]) -> (f64, f64) {
+    let (mut won, mut all, mut sq) = (0.0, 0.0, 0.0);
+    for ((cube, a), b) in cubes.iter().zip(at_a).zip(at_b) {
+        let n = cube.len() as f64;
+        all += n;
+        sq += n * n;
+        if a < b {
+            won += n;
+        }
+    }
+    if all > 0.0 {
+        (won / all, all * all / sq)
+    } else {
+        (f64::NAN, 0.0)
+    }
 }
 
 #[cfg(test)]
@@ -145,5 +175,28 @@ mod tests {
         // One cube over everything cannot fit four colours even at the true σ.
         let one = vec![(0..40).collect::<Vec<u32>>()];
         assert!(objective(&pixels, &one, &|_| 0.3) > 1e-4);
+        // The objective is the sum of the cubes' summands.
+        let per = per_cube(&pixels, &cubes, &|_| 0.9);
+        assert_eq!(per.len(), 4);
+        assert!((per.iter().sum::<f64>() - at(0.9)).abs() <= 1e-12 * at(0.9));
+        // Every cube prefers the true σ.
+        let truth = per_cube(&pixels, &cubes, &|_| 0.3);
+        assert_eq!(preference(&cubes, &truth, &per), (1.0, 4.0));
+        assert_eq!(preference(&cubes, &per, &truth).0, 0.0);
+    }
+
+    /// One cube far better at A and three a little worse: A wins the sum, but a quarter of
+    /// the pixels prefer it; cubes of 3, 1 and 1 pixels count as (5²)/11 of equal size.
+    #[test]
+    fn preference_counts_pixels_not_the_sum() {
+        let cubes: Vec<Vec<u32>> = vec![vec![0], vec![1], vec![2], vec![3]];
+        let (a, b) = ([0.1, 1.01, 1.01, 1.01], [1.0; 4]);
+        assert!(a.iter().sum::<f64>() < b.iter().sum::<f64>());
+        assert_eq!(preference(&cubes, &a, &b), (0.25, 4.0));
+        let uneven: Vec<Vec<u32>> = vec![vec![0, 1, 2], vec![3], vec![4]];
+        let (share, n) = preference(&uneven, &[0.0, 1.0, 1.0], &[1.0, 0.0, 0.0]);
+        assert_eq!(share, 0.6);
+        assert!((n - 25.0 / 11.0).abs() < 1e-12);
+        assert!(preference(&[], &[], &[]).0.is_nan());
     }
 }
