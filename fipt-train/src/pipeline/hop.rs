@@ -824,6 +824,14 @@ fn hop_helped(c: &[HopCandidate], gain: f32) -> bool {
     sum(|c| c.objective_after) <= (1.0 - gain as f64) * sum(|c| c.objective)
 }
 
+/// The patch sweep's best σ, its objective there and at the fitted mean σ
+/// (`SegmentObjective::patch`).
+type PatchBest = (f64, f64, f64);
+
+/// The share of pixels whose cube prefers the best σ, and the effective number of cubes
+/// (`SegmentObjective::patch_share`).
+type PatchShare = (f64, f64);
+
 /// Every segment's pixels (all of them, not the check's sample) grouped into cubes for the
 /// patch hypothesis (`patches`).
 struct PatchSegments<'a> {
@@ -897,7 +905,7 @@ impl<'a> PatchSegments<'a> {
 
     /// The segment's best swept σ, the patch objective there, and at the model's mean σ; and
     /// how many of its cubes prefer that best σ to the mean σ (`patches::preference`).
-    fn profile(&self, model: &FiptModel, id: i32) -> Option<((f64, f64, f64), (f64, f64))> {
+    fn profile(&self, model: &FiptModel, id: i32) -> Option<(PatchBest, PatchShare)> {
         use super::patches::{objective, per_cube, preference};
         self.with_pixels(model, id, |pixels, cubes, mean| {
             let n = pixels.len().max(1) as f64;
