@@ -14,6 +14,9 @@
 //! `settle`, the anchor holds a dielectric of a refined round at its patch hypothesis (its
 //! sweep's nearby minimum, and m = 0) rather than where the prior left it. With `hold_metals`,
 //! a candidate that hops as a metal stays pulled to its target through the release phase.
+//! With `patch_majority`, a patch hypothesis counts only where most of the segment's cubes
+//! prefer it (`patches::preference`), and a refined round's dielectric whose far patch
+//! hypothesis fails that test is settled at its fitted σ with m = 0.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
