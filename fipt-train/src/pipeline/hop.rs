@@ -559,7 +559,8 @@ fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> 
     if far < cfg.min_move as f64 {
         return Some(sigma);
     }
-    let counts = far >= cfg.patch_min_move as f64 && 1.0 - obj / base >= cfg.patch_gain as f64;
+    let (gain, min_move) = thresholds(cfg, Hypothesis::Patch);
+    let counts = far >= min_move as f64 && 1.0 - obj / base >= gain as f64;
     (counts && !preferred(cfg, c.patch_share)).then_some(c.sigma)
 }
 
@@ -893,19 +894,6 @@ impl<'a> PatchSegments<'a> {
         Some(f(&pixels, cubes, mean))
     }
 
-    /// The patch objective (mean per pixel) of segment `id` (`with_pixels`) at one common σ:
-    /// each of `sweep`, then the model's mean σ over the segment (the last value).
-    fn profile_at(&self, model: &FiptModel, id: i32, sweep: &[f32]) -> Option<Vec<f64>> {
-        self.with_pixels(model, id, |pixels, cubes, mean| {
-            let n = pixels.len().max(1) as f64;
-            sweep
-                .iter()
-                .chain([&mean])
-                .map(|&s| super::patches::objective(pixels, cubes, &move |_| s) / n)
-                .collect()
-        })
-    }
-
     /// The segment's best swept σ, the patch objective there, and at the model's mean σ; and
     /// how many of its cubes prefer that best σ to the mean σ (`patches::preference`).
     fn profile(&self, model: &FiptModel, id: i32) -> Option<(PatchBest, PatchShare)> {
@@ -924,9 +912,13 @@ impl<'a> PatchSegments<'a> {
         })
     }
 
-    /// The patch objective at the model's mean σ (NaN for a segment without pixels).
+    /// The patch objective (mean per pixel) at the model's mean σ (NaN for a segment without
+    /// pixels).
     fn at_model(&self, model: &FiptModel, id: i32) -> f64 {
-        self.profile_at(model, id, &[]).map_or(f64::NAN, |v| v[0])
+        self.with_pixels(model, id, |pixels, cubes, mean| {
+            super::patches::objective(pixels, cubes, &move |_| mean) / pixels.len().max(1) as f64
+        })
+        .unwrap_or(f64::NAN)
     }
 }
 
