@@ -47,6 +47,13 @@ pub struct RefineConfig {
     /// the emitter, so it would light the scene as a ring of emitter around each one. Applied
     /// by the caller that builds L′.
     pub cache_margin: usize,
+    /// L′, as the radiance cache, holds the photos less the specular radiance that the last
+    /// fit predicts at each pixel (k_s·L_s0(σ) + L_s1(σ) on its shadings), rebuilt for every
+    /// refinement (false: the photos, the reference). A photo's specular part belongs to its
+    /// camera's direction, and a path reads the cache from another. Applied by the caller
+    /// that builds L′.
+    #[serde(default)]
+    pub cache_diffuse: bool,
     /// BRDF sampling at path vertices (reference: `half`).
     pub lobe: LobeChoice,
     /// Light samples per pixel at the first hit x, shared by all 13 estimators and combined
@@ -81,6 +88,7 @@ impl Default for RefineConfig {
             max_depth: 7,
             cache_roughness: 0.6,
             cache_margin: 0,
+            cache_diffuse: false,
             lobe: LobeChoice::Half,
             light_samples: 0,
             observed_sides: false,

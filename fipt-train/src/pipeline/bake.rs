@@ -145,6 +145,34 @@ pub fn light_field_without_emitters(
     (lf, gone)
 }
 
+/// L′ rebuilt as `light_field_without_emitters`, from the training photos less `specular`
+/// (per view, 3 floats per pixel, as `fit::specular` gives it), clamped at 0: the radiance
+/// cache of `refine.paths.cache_diffuse`.
+pub fn light_field_diffuse(
+    ds: &fipt_core::scene::Dataset,
+    baked: &Baked,
+    cfg: &BakeConfig,
+    specular: &[Vec<f32>],
+    is_emitter: impl Fn(i32) -> bool,
+    margin: usize,
+) -> LightField {
+    let left_out =
+        (margin > 0).then(|| super::pixels::on_or_near_emitters(&baked.hits, is_emitter, margin));
+    light_field_replacing(
+        ds,
+        baked,
+        cfg,
+        |k, p| {
+            let (img, s) = (
+                ds.train.views[k].image.rgb(p),
+                &specular[k][3 * p..3 * p + 3],
+            );
+            Some(std::array::from_fn(|c| (img[c] - s[c]).max(0.0)))
+        },
+        &|k, p| left_out.as_ref().is_some_and(|l| l[k][p]),
+    )
+}
+
 /// L′ rebuilt from the training photos with some pixels' values replaced and some left out:
 /// `replace(k, p)` gives pixel `p` of view `k` its value, or None to keep the photo's (only a
 /// view with a replaced pixel is copied), and `left_out(k, p)` leaves it out; same grid, scene

@@ -32,6 +32,26 @@ pub fn reflected(tr: &Trainer, store: &PixelStore, hits: &[fipt_bake::ViewHits])
     out
 }
 
+/// The specular part of `reflected`, k_s·L_s0(σ) + L_s1(σ) (Eq. 5 without k_d·L_d), that
+/// `model` predicts from the stored shadings at every stored pixel, scattered back into
+/// per-view images of the sizes of `hits` (zeros where no pixel is stored).
+pub fn specular(
+    model: &fipt_core::model::FiptModel,
+    store: &PixelStore,
+    hits: &[fipt_bake::ViewHits],
+) -> Vec<Vec<f32>> {
+    let mat = model.material(&store.pixels.x_unit, &store.pixels.part);
+    let mut out: Vec<Vec<f32>> = hits.iter().map(|h| vec![0.0; 3 * h.num_pixels()]).collect();
+    for (i, &(k, p)) in store.origin.iter().enumerate() {
+        let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
+        let (_, ks) = reflectances(a, mat.metallic[i]);
+        let sh = ShadingLayout::pixel(&store.pixels.shadings, i);
+        let c = factorised_render([0.0; 3], ks.to_array(), mat.sigma[i], sh);
+        out[k as usize][3 * p as usize..3 * p as usize + 3].copy_from_slice(&c);
+    }
+    out
+}
+
 /// The segments (`Batch::seg`) whose mean m under `model`, over their stored pixels, is at
 /// least 0.5: the metals of a fit.
 pub fn metal_segments(model: &fipt_core::model::FiptModel, store: &PixelStore) -> Vec<i32> {
@@ -353,3 +373,68 @@ pub fn fit_resumable(
 
 /// Steps between two reads of the device path's losses.
 pub const LOSS_READ_EVERY: usize = 25;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::test_data::{toy_fit, toy_store};
+    use glam::Vec3;
+
+    /// One view of `n` pixels in a row, as `toy_store` places them.
+    fn row(n: usize) -> Vec<fipt_bake::ViewHits> {
+        vec![fipt_bake::ViewHits {
+            width: n,
+            height: 1,
+            origin: Vec3::ZERO,
+            direction: vec![Vec3::Z; n],
+            t: vec![1.0; n],
+            tri: vec![0; n],
+            position: vec![Vec3::ZERO; n],
+            normal: vec![Vec3::Z; n],
+        }]
+    }
+
+    /// Eq. 5 splits into its diffuse and specular parts: at every stored pixel the reflected
+    /// radiance less `specular` is k_d·L_d of the model's material, and `specular` is zero
+    /// where L_s0 and L_s1 are, while the reflected radiance is not.
+    #[test]
+    fn specular_is_the_reflected_radiance_less_kd_ld() {
+        let n = 64;
+        let mut st = toy_store(n);
+        // Pixel 0 without specular shadings.
+        for s in ShadingLayout::LS0.chain(ShadingLayout::LS1) {
+            st.pixels.shadings[s] = 0.0;
+        }
+        let (cfg, _) = toy_fit();
+        let tr = Trainer::new(
+            cfg,
+            SceneBox { min: 0.0, max: 1.0 },
+            &burn::tensor::Device::flex(),
+            5,
+        );
+        let hits = row(n);
+        let (refl, spec) = (reflected(&tr, &st, &hits), specular(&tr.model, &st, &hits));
+        let mat = tr.model.material(&st.pixels.x_unit, &st.pixels.part);
+        let mut specular_sum = 0.0;
+        for i in 0..n {
+            let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
+            let (kd, _) = reflectances(a, mat.metallic[i]);
+            let ld = &ShadingLayout::pixel(&st.pixels.shadings, i)[ShadingLayout::LD];
+            for c in 0..3 {
+                let diffuse = kd.to_array()[c] * ld[c];
+                let (r, s) = (refl[0][3 * i + c], spec[0][3 * i + c]);
+                assert!(
+                    (r - s - diffuse).abs() < 1e-5,
+                    "pixel {i}: {r} - {s} != {diffuse}"
+                );
+                assert!(s >= 0.0);
+                if i == 0 {
+                    assert_eq!(s, 0.0, "no specular shading, no specular radiance");
+                    assert!(r > 0.0);
+                }
+                specular_sum += s;
+            }
+        }
+        assert!(specular_sum > 0.0, "the toy shadings have specular parts");
+    }
+}

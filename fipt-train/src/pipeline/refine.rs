@@ -22,6 +22,7 @@ use fipt_bake::materials::{MaterialSource, SurfaceMaterial, VoxelMaterials};
 use fipt_core::io::Fnv64;
 use fipt_core::model::FiptModel;
 use fipt_core::scene::Dataset;
+use fipt_core::shading::ShadingLayout;
 use glam::Vec3;
 
 /// The refined shadings of one round.
@@ -215,6 +216,38 @@ pub fn oracle(scene_dir: &std::path::Path, job: &RefineJob) -> anyhow::Result<Ve
     Ok(refine_with(job, &materials, &lights)?.0)
 }
 
+/// The specular radiance k_s·L_s0(σ) + L_s1(σ) of the true materials (the train views' base
+/// colour, roughness and metallic maps) on the baked shadings, per view and pixel; None when
+/// a map is missing.
+fn true_specular(ds: &Dataset, baked: &Baked) -> Option<Vec<Vec<f32>>> {
+    use fipt_core::scene::MapKind;
+    ds.train
+        .views
+        .iter()
+        .zip(&baked.shadings)
+        .map(|(v, sh)| {
+            let (a, r, m) = (
+                v.map(MapKind::BaseColor)?,
+                v.map(MapKind::Roughness)?,
+                v.map(MapKind::Metallic)?,
+            );
+            let n = v.image.num_pixels();
+            let mut out = vec![0f32; 3 * n];
+            for p in 0..n {
+                let (_, ks) = fipt_core::brdf::reflectances(Vec3::from(a.rgb(p)), m.scalar(p));
+                let c = fipt_core::brdf::factorised_render(
+                    [0.0; 3],
+                    ks.to_array(),
+                    r.scalar(p),
+                    ShadingLayout::pixel(sh, p),
+                );
+                out[3 * p..3 * p + 3].copy_from_slice(&c);
+            }
+            Some(out)
+        })
+        .collect()
+}
+
 /// The oracle shadings of every training view of a scene with ground truth, cached in
 /// `out/cache/oracle.bin` under the bake's key and the oracle's path config.
 pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<f32>>> {
@@ -234,11 +267,29 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
     let all: Vec<usize> = (0..ds.train.views.len()).collect();
     // The cache's L′ without the pixels next to the true emitters, as the refinement's leaves
     // out those next to the extracted ones.
+    // With `cache_diffuse`, the photos less the true materials' specular radiance.
     let rebuilt: Option<LightField> = match (&ds.meta, rcfg.cache_margin) {
-        (Some(meta), m) if m > 0 => {
+        (Some(meta), m) if m > 0 || rcfg.cache_diffuse => {
             let emission = meta.triangle_emission(ds.mesh.num_triangles());
             let lit = |t: i32| emission[t as usize].iter().any(|&c| c > 0.0);
-            Some(super::bake::light_field_without_emitters(ds, baked, &ctx.bake_cfg, lit, m).0)
+            let spec = rcfg
+                .cache_diffuse
+                .then(|| true_specular(ds, baked))
+                .flatten();
+            match spec {
+                Some(spec) => Some(super::bake::light_field_diffuse(
+                    ds,
+                    baked,
+                    &ctx.bake_cfg,
+                    &spec,
+                    lit,
+                    m,
+                )),
+                None if m > 0 => Some(
+                    super::bake::light_field_without_emitters(ds, baked, &ctx.bake_cfg, lit, m).0,
+                ),
+                None => None,
+            }
         }
         _ => None,
     };

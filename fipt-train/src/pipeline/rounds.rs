@@ -293,7 +293,9 @@ impl Rounds {
     }
 
     /// (4) Round `r`'s shadings, path-traced with the last fit and the emitters (from the
-    /// refinement cache when the same model made them before), into the pixel store.
+    /// refinement cache when the same model made them before), into the pixel store; with
+    /// `refine.paths.cache_diffuse`, through L′ rebuilt from the photos less the specular
+    /// radiance the last fit predicts on the store's shadings.
     pub fn refine(
         &mut self,
         ctx: &mut RunContext,
@@ -312,11 +314,22 @@ impl Rounds {
                 Some(s) => (s, None),
                 None => {
                     let all: Vec<usize> = (0..ctx.ds.train.views.len()).collect();
+                    let diffuse = match (rcfg.cache_diffuse, self.emitter_triangles(ctx)) {
+                        (true, Some(lit)) => Some(super::bake::light_field_diffuse(
+                            &ctx.ds,
+                            baked,
+                            &ctx.bake_cfg,
+                            &fit::specular(&tr_prev.model, store, &baked.hits),
+                            |t| lit[t as usize],
+                            rcfg.cache_margin,
+                        )),
+                        _ => None,
+                    };
                     let job = refine::RefineJob {
                         ds: &ctx.ds,
                         accel: &ctx.accel,
                         baked,
-                        light_field: &baked.light_field,
+                        light_field: diffuse.as_ref().unwrap_or(&baked.light_field),
                         cfg: &rcfg,
                         views: &all,
                         material_cache: true,
