@@ -314,17 +314,20 @@ impl Rounds {
                 Some(s) => (s, None),
                 None => {
                     let all: Vec<usize> = (0..ctx.ds.train.views.len()).collect();
-                    let diffuse = match (rcfg.cache_diffuse, self.emitter_triangles(ctx)) {
-                        (true, Some(lit)) => Some(super::bake::light_field_diffuse(
-                            &ctx.ds,
-                            baked,
-                            &ctx.bake_cfg,
-                            &fit::specular(&tr_prev.model, store, &baked.hits),
-                            |t| lit[t as usize],
-                            rcfg.cache_margin,
-                        )),
-                        _ => None,
-                    };
+                    let diffuse = rcfg
+                        .cache_diffuse
+                        .then(|| self.emitter_triangles(ctx))
+                        .flatten()
+                        .map(|lit| {
+                            super::bake::light_field_diffuse(
+                                &ctx.ds,
+                                baked,
+                                &ctx.bake_cfg,
+                                &fit::specular(&tr_prev.model, store, &baked.hits),
+                                |t| lit[t as usize],
+                                rcfg.cache_margin,
+                            )
+                        });
                     let job = refine::RefineJob {
                         ds: &ctx.ds,
                         accel: &ctx.accel,
