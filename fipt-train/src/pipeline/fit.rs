@@ -20,16 +20,7 @@ use std::path::Path;
 /// pixel, scattered back into per-view images of the sizes of `hits` (3 floats per pixel, zeros
 /// at misses).
 pub fn reflected(tr: &Trainer, store: &PixelStore, hits: &[fipt_bake::ViewHits]) -> Vec<Vec<f32>> {
-    let mat = tr.model.material(&store.pixels.x_unit, &store.pixels.part);
-    let mut out: Vec<Vec<f32>> = hits.iter().map(|h| vec![0.0; 3 * h.num_pixels()]).collect();
-    for (i, &(k, p)) in store.origin.iter().enumerate() {
-        let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
-        let (kd, ks) = reflectances(a, mat.metallic[i]);
-        let sh = ShadingLayout::pixel(&store.pixels.shadings, i);
-        let c = factorised_render(kd.to_array(), ks.to_array(), mat.sigma[i], sh);
-        out[k as usize][3 * p as usize..3 * p as usize + 3].copy_from_slice(&c);
-    }
-    out
+    rendered(&tr.model, store, hits, true)
 }
 
 /// The specular part of `reflected`, k_s·L_s0(σ) + L_s1(σ) (Eq. 5 without k_d·L_d), that
@@ -40,13 +31,25 @@ pub fn specular(
     store: &PixelStore,
     hits: &[fipt_bake::ViewHits],
 ) -> Vec<Vec<f32>> {
+    rendered(model, store, hits, false)
+}
+
+/// Eq. 5 at every stored pixel with `model`'s material and the stored shadings, its k_d·L_d
+/// term included or not (`diffuse`), scattered back into per-view images of the sizes of `hits`.
+fn rendered(
+    model: &fipt_core::model::FiptModel,
+    store: &PixelStore,
+    hits: &[fipt_bake::ViewHits],
+    diffuse: bool,
+) -> Vec<Vec<f32>> {
     let mat = model.material(&store.pixels.x_unit, &store.pixels.part);
     let mut out: Vec<Vec<f32>> = hits.iter().map(|h| vec![0.0; 3 * h.num_pixels()]).collect();
     for (i, &(k, p)) in store.origin.iter().enumerate() {
         let a = glam::Vec3::from_slice(&mat.a[3 * i..3 * i + 3]);
-        let (_, ks) = reflectances(a, mat.metallic[i]);
+        let (kd, ks) = reflectances(a, mat.metallic[i]);
+        let kd = if diffuse { kd.to_array() } else { [0.0; 3] };
         let sh = ShadingLayout::pixel(&store.pixels.shadings, i);
-        let c = factorised_render([0.0; 3], ks.to_array(), mat.sigma[i], sh);
+        let c = factorised_render(kd, ks.to_array(), mat.sigma[i], sh);
         out[k as usize][3 * p as usize..3 * p as usize + 3].copy_from_slice(&c);
     }
     out
