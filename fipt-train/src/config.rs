@@ -108,6 +108,9 @@ impl Default for RefineSection {
                 // L′ without the pixels on and next to the emitters as the refinement's
                 // radiance cache (the reference keeps them); `docs/departures/cache-margin.md`.
                 cache_margin: 1,
+                // L′ from the photos less the last fit's predicted specular before each
+                // refinement (the reference keeps the photos); `docs/departures/cache-diffuse.md`.
+                cache_diffuse: true,
                 // The sharp lobes (levels 0 and 1) left unfiltered, as the bake leaves them
                 // (the reference filters all six); `docs/departures/bake-filter.md`.
                 filter: fipt_bake::filter::FilterConfig::default(),
