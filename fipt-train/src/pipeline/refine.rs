@@ -14,6 +14,7 @@ use crate::learned::LearnedMaterials;
 use crate::progress::progress_bar;
 use fipt_bake::Accel;
 use fipt_bake::accel::footprint::ViewFootprint;
+use fipt_bake::accel::raycast::ViewHits;
 use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathScene, PathStats, RadianceCache};
 use fipt_bake::integrators::refine::{RefineConfig, refine_view};
@@ -164,8 +165,13 @@ pub fn refine_with(
             min_roughness: cfg.cache_roughness,
         }),
     };
-    let parts = (cfg.footprint > 0)
+    let keys = (cfg.footprint > 0 || cfg.small_parts > 0)
         .then(|| super::bake::part_keys(&job.ds.mesh, &job.ds.train, &baked.hits));
+    let parts = keys.as_deref().filter(|_| cfg.footprint > 0);
+    let passes = keys
+        .as_deref()
+        .filter(|_| cfg.small_parts > 0)
+        .map(|keys| small_part_passes(keys, &baked.hits, cfg));
     let pb = progress_bar(job.views.len() as u64, "refine", job.show_progress);
     let mut stats = PathStats::default();
     let mut shadings = Vec::with_capacity(job.views.len());
@@ -179,14 +185,41 @@ pub fn refine_with(
             .into());
         }
         let (v, h) = (&job.ds.train.views[k], &baked.hits[k]);
-        let fp = ViewFootprint::cast(job.accel, &v.camera, h, parts.as_deref(), cfg.footprint);
-        let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64);
+        let fp = ViewFootprint::cast(job.accel, &v.camera, h, parts, cfg.footprint);
+        let n = passes.as_ref().map(|p| p[k].as_slice());
+        let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64, n);
         stats.add(&st);
         pb.inc(1);
         shadings.push(s);
     }
     pb.finish_and_clear();
     Ok((shadings, stats))
+}
+
+/// Per view and pixel, how many estimates `refine_view` averages (`RefineConfig::small_parts`):
+/// by the number of pixels of the pixel's part (`keys`, per triangle) over every view of
+/// `hits`; 1 where the centre ray missed.
+fn small_part_passes(keys: &[u64], hits: &[ViewHits], cfg: &RefineConfig) -> Vec<Vec<u32>> {
+    let mut seen: std::collections::HashMap<u64, usize> = std::collections::HashMap::new();
+    for h in hits {
+        for &t in h.tri.iter().filter(|&&t| t >= 0) {
+            *seen.entry(keys[t as usize]).or_default() += 1;
+        }
+    }
+    hits.iter()
+        .map(|h| {
+            h.tri
+                .iter()
+                .map(|&t| {
+                    if t < 0 {
+                        1
+                    } else {
+                        cfg.passes_for(seen[&keys[t as usize]])
+                    }
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// Oracle shadings of the job's views: path-traced with the scene's true materials and emitters
