@@ -212,6 +212,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "train.lambda_d_end", UNIT, "a fraction of λ_d"),
     f(C, "train.lambda_d_warmup", UNIT, "a share of the steps"),
     f(C, "train.min_coverage", UNIT, "a share of a pixel"),
+    f(C, "train.coverage_crease", closed(0.0, 180.0), "degrees"),
     f(C, "train.lambda_e", WEIGHT, "a loss weight"),
     f(C, "train.lambda_d", WEIGHT, "a loss weight"),
     f(C, "train.prior_sigma", UNIT, "a roughness"),

@@ -273,6 +273,11 @@ pub struct TrainSection {
     /// cover for the pixel to enter the fits (`pipeline::pixels::coverage`; 0: every pixel,
     /// the reference).
     pub min_coverage: f32,
+    /// With `min_coverage`: a sub-pixel ray counts for the centre's part only where the
+    /// triangle it hits faces within this many degrees of the centre's (180: any, the part
+    /// alone), so that a pixel on a box's edge, which averages two faces' reflections, is
+    /// split too (`pipeline::pixels::CoverKeys`).
+    pub coverage_crease: f32,
     pub seg: SegChoice,
     pub lambda_e: f32,
     pub lambda_d: f32,
@@ -320,6 +325,7 @@ impl Default for TrainSection {
             // bounded (the reference has neither); `docs/departures/`.
             lambda_d_warmup: 0.75,
             min_coverage: 0.0,
+            coverage_crease: 180.0,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
@@ -857,6 +863,11 @@ impl TrainSection {
         {
             check((0.0..=1.0).contains(&v), k, "must be in [0, 1]")?;
         }
+        check(
+            (0.0..=180.0).contains(&t.coverage_crease),
+            "train.coverage_crease",
+            "must be in [0, 180] degrees",
+        )?;
         check(
             t.logit_bound.is_none_or(|z| z > 0.0 && z.is_finite()),
             "train.logit_bound",

@@ -78,7 +78,11 @@ pub fn landscapes(
             .meta
             .as_ref()
             .map(|m| m.triangle_part(ds.mesh.num_triangles()));
-        let keys = cover_keys(&ds.mesh, parts, cover_planes);
+        let keys = super::pixels::CoverKeys::with_crease(
+            cover_keys(&ds.mesh, parts, cover_planes),
+            &ds.mesh,
+            cfg.train.coverage_crease,
+        );
         let cams = ds.train.views.iter().map(|v| &v.camera);
         let c = super::pixels::coverage(&ctx.accel, cams, &baked.hits, &keys);
         (c, cfg.train.min_coverage)

@@ -282,36 +282,70 @@ pub fn ring_around(on: &[bool], width: usize, margin: usize) -> Vec<bool> {
 /// Points per side of the grid `coverage` casts inside a pixel.
 const COVER_GRID: usize = 4;
 
+/// What counts as the surface a pixel's centre ray hits, for `coverage`: the triangles with
+/// its key (a part label, or a plane), and with `crease` also a unit normal within that angle
+/// of the centre triangle's (two faces of one box are then two surfaces, a finely tessellated
+/// curved part one).
+pub struct CoverKeys {
+    pub keys: Vec<u64>,
+    /// Per triangle its unit normal, and the cosine of the crease angle (None: keys alone).
+    pub crease: Option<(Vec<glam::Vec3>, f32)>,
+}
+
+impl CoverKeys {
+    /// Keys alone.
+    pub fn keys(keys: Vec<u64>) -> Self {
+        Self { keys, crease: None }
+    }
+
+    /// Keys, and the normals of `mesh`'s triangles within `degrees` of each other where
+    /// `degrees` < 180 (`train.coverage_crease`).
+    pub fn with_crease(keys: Vec<u64>, mesh: &fipt_core::scene::Mesh, degrees: f32) -> Self {
+        let crease = (degrees < 180.0).then(|| {
+            let normals = (0..mesh.num_triangles()).map(|t| mesh.normal(t)).collect();
+            (normals, degrees.to_radians().cos())
+        });
+        Self { keys, crease }
+    }
+
+    /// Whether triangle `t` belongs to the surface of the centre's triangle `c`.
+    fn same(&self, c: usize, t: usize) -> bool {
+        self.keys[c] == self.keys[t]
+            && self
+                .crease
+                .as_ref()
+                .is_none_or(|(n, cos)| n[c].dot(n[t]) >= *cos)
+    }
+}
+
 /// Per view and pixel, the share of the pixel's square that the surface its centre ray hits
-/// covers: the share of a 4×4 grid of points inside the pixel whose rays hit a triangle with
-/// the `keys` entry of the centre's triangle (a part label, or a plane). A photo's pixel is the
-/// mean over its square (a box filter) while the fit reads the surface at its centre, so a
-/// pixel split between two parts mixes a second material into the first one's data. Pixels
-/// whose 3×3 neighbourhood of centre rays hits triangles of one key are covered whole without
+/// covers: the share of a 4×4 grid of points inside the pixel whose rays hit a triangle of the
+/// centre triangle's surface (`CoverKeys`). A photo's pixel is the mean over its square (a box
+/// filter) while the fit reads the surface at its centre, so a pixel split between two parts,
+/// or two faces of one, mixes a second reflection into the first one's data. Pixels whose 3×3
+/// neighbourhood of centre rays hits the centre's surface only are covered whole without
 /// casting; a pixel whose centre ray misses covers 0.
 pub fn coverage<'a>(
     accel: &Accel,
     cams: impl IntoIterator<Item = &'a Camera>,
     hits: &[ViewHits],
-    keys: &[u64],
+    keys: &CoverKeys,
 ) -> Vec<Vec<f32>> {
     let n = COVER_GRID;
     cams.into_iter()
         .zip(hits)
         .map(|(cam, h)| {
             let (w, ht) = (h.width, h.height);
-            let key = |t: i32| (t >= 0).then(|| keys[t as usize]);
-            let centre: Vec<Option<u64>> = h.tri.iter().map(|&t| key(t)).collect();
             (0..w * ht)
                 .into_par_iter()
                 .map(|p| {
-                    let Some(c) = centre[p] else {
+                    let Ok(c) = usize::try_from(h.tri[p]) else {
                         return 0.0;
                     };
+                    let on = |t: i32| usize::try_from(t).is_ok_and(|t| keys.same(c, t));
                     let (x, y) = (p % w, p / w);
                     let whole = (y.saturating_sub(1)..(y + 2).min(ht)).all(|yy| {
-                        (x.saturating_sub(1)..(x + 2).min(w))
-                            .all(|xx| centre[yy * w + xx] == Some(c))
+                        (x.saturating_sub(1)..(x + 2).min(w)).all(|xx| on(h.tri[yy * w + xx]))
                     });
                     if whole {
                         return 1.0;
@@ -321,7 +355,7 @@ pub fn coverage<'a>(
                     accel.closest_many(&rays, 0.0, f32::INFINITY, &mut sub);
                     let same = sub
                         .iter()
-                        .filter(|hit| hit.is_some_and(|x| keys[x.tri as usize] == c))
+                        .filter(|hit| hit.is_some_and(|x| keys.same(c, x.tri as usize)))
                         .count();
                     same as f32 / (n * n) as f32
                 })
@@ -557,12 +591,67 @@ mod tests {
             strip[..w],
             [false, false, false, true, true, false, false, false]
         );
-        let cover = coverage(&accel, [&cam], &hits, &[0, 0, 1, 1]);
+        let cover = coverage(&accel, [&cam], &hits, &CoverKeys::keys(vec![0, 0, 1, 1]));
         let want = [1.0, 1.0, 0.75, 1.0, 1.0, 0.75, 1.0, 1.0];
         for y in 0..h {
             assert_eq!(cover[0][y * w..(y + 1) * w], want, "row {y}");
         }
-        let one = coverage(&accel, [&cam], &hits, &[7, 7, 7, 7]);
+        let one = coverage(&accel, [&cam], &hits, &CoverKeys::keys(vec![7; 4]));
         assert!(one[0].iter().all(|&c| c == 1.0));
+        // The strip and the wall face the camera alike: one surface under any crease angle.
+        let flat = coverage(
+            &accel,
+            [&cam],
+            &hits,
+            &CoverKeys::with_crease(vec![7; 4], &mesh, 30.0),
+        );
+        assert!(flat[0].iter().all(|&c| c == 1.0));
+    }
+
+    /// A ridge of one part, two faces at 90° meeting through the middle column of a 9-pixel-wide
+    /// view: with a crease angle the middle column straddles two surfaces and covers half its
+    /// square, every other pixel one face whole; without one, the part covers every pixel whole.
+    #[test]
+    fn a_crease_splits_one_part_into_its_faces() {
+        use glam::DVec3;
+        let (w, h) = (9, 3);
+        let cam = Camera::look_at_fov(DVec3::ZERO, DVec3::Z, DVec3::Y, 1.0, w, h);
+        // z = 10 + |x|: the ridge at x = 0 nearest the camera.
+        let (x0, y0) = (20.0f32, 20.0f32);
+        let vertices = vec![
+            Vec3::new(-x0, -y0, 10.0 + x0),
+            Vec3::new(0.0, -y0, 10.0),
+            Vec3::new(0.0, y0, 10.0),
+            Vec3::new(-x0, y0, 10.0 + x0),
+            Vec3::new(x0, -y0, 10.0 + x0),
+            Vec3::new(x0, y0, 10.0 + x0),
+        ];
+        let mesh = fipt_core::scene::Mesh {
+            vertices,
+            triangles: vec![[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]],
+        };
+        let accel = Accel::build(&mesh);
+        let hits = vec![fipt_bake::cast_view(&accel, &mesh, &cam)];
+        let part = vec![3u64; 4];
+        let whole = coverage(&accel, [&cam], &hits, &CoverKeys::keys(part.clone()));
+        assert!(whole[0].iter().all(|&c| c == 1.0));
+        let faces = coverage(
+            &accel,
+            [&cam],
+            &hits,
+            &CoverKeys::with_crease(part.clone(), &mesh, 30.0),
+        );
+        let want = [1.0, 1.0, 1.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0];
+        for y in 0..h {
+            assert_eq!(faces[0][y * w..(y + 1) * w], want, "row {y}");
+        }
+        // 180°: no crease.
+        let off = coverage(
+            &accel,
+            [&cam],
+            &hits,
+            &CoverKeys::with_crease(part, &mesh, 180.0),
+        );
+        assert_eq!(off, whole);
     }
 }

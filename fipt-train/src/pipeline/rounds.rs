@@ -80,8 +80,8 @@ impl FitSetup {
     }
 
     /// With `train.min_coverage` τ > 0: the pixels whose square the part their centre ray hits
-    /// covers less than τ of (`pixels::coverage`; planes of the mesh without labels) leave the
-    /// store, for every round's fit.
+    /// covers less than τ of (`pixels::coverage`; planes of the mesh without labels; within
+    /// `train.coverage_crease` of the centre's normal) leave the store, for every round's fit.
     fn leave_out_mixed_pixels(&self, ctx: &RunContext, baked: &Baked, st: &mut PixelStore) {
         let tau = ctx.cfg.train.min_coverage;
         if tau <= 0.0 {
@@ -99,7 +99,7 @@ impl FitSetup {
             &ctx.accel,
             ctx.ds.train.views.iter().map(|v| &v.camera),
             &baked.hits,
-            &keys,
+            &pixels::CoverKeys::with_crease(keys, &ctx.ds.mesh, ctx.cfg.train.coverage_crease),
         );
         let gone = st.retain(|k, p| cover[k as usize][p as usize] >= tau);
         if ctx.progress() {
