@@ -287,9 +287,9 @@ const COVER_GRID: usize = 4;
 /// of the centre triangle's (two faces of one box are then two surfaces, a finely tessellated
 /// curved part one).
 pub struct CoverKeys {
-    pub keys: Vec<u64>,
+    keys: Vec<u64>,
     /// Per triangle its unit normal, and the cosine of the crease angle (None: keys alone).
-    pub crease: Option<(Vec<glam::Vec3>, f32)>,
+    crease: Option<(Vec<glam::Vec3>, f32)>,
 }
 
 impl CoverKeys {
