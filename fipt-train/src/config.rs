@@ -604,6 +604,10 @@ pub struct HopConfig {
     /// share of its pixels whose cube (`patch`) scores lower at the hypothesis than at the fit
     /// may lie at most this many standard errors (0.5 / √cubes) below a half (null: off).
     pub patch_majority: Option<f32>,
+    /// Also solve the patch hypothesis for the segments fitted metallic (mean m ≥ 0.5), as a
+    /// metal (m = 1, the colour per cube its F0), and hop them as the metal it was solved as
+    /// (false: dielectrics only).
+    pub patch_metals: bool,
 }
 
 impl Default for HopConfig {
@@ -626,6 +630,7 @@ impl Default for HopConfig {
             patch_dielectric: true,
             hold_metals: 0.1,
             patch_majority: Some(2.0),
+            patch_metals: false,
         }
     }
 }

@@ -106,8 +106,9 @@ pub struct SegmentObjective {
     #[serde(default)]
     pub carried: Option<(f64, f64, f64)>,
     /// With the base colour solved per patch over all the segment's pixels
-    /// (`train.hop.patch`), at one common σ as a dielectric: the best swept σ, the objective
-    /// there, and the objective at the fitted mean σ (None: not tried).
+    /// (`train.hop.patch`), at one common σ as a dielectric (as a metal for a segment fitted
+    /// metallic, with `train.hop.patch_metals`): the best swept σ, the objective there, and the
+    /// objective at the fitted mean σ (None: not tried).
     #[serde(default)]
     pub patch: Option<(f64, f64, f64)>,
     /// How many of the patch hypothesis's cubes prefer its best σ to the fitted mean σ
@@ -482,13 +483,20 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
         let m = ((m >= 0.5) != (c.metallic >= 0.5)).then_some(m);
         options.push((Hypothesis::Carried, sigma, m, obj, c.before));
     }
-    // Dielectrics only: a metal's σ is the sweep's and the metal's to find. Solved as a
-    // dielectric, it names m 0 with `patch_dielectric`.
+    // Dielectrics, and with `patch_metals` metals too (else a metal's σ is the sweep's and the
+    // metal's to find). With `patch_dielectric` it names the m it was solved at: 0 for a
+    // dielectric, 1 for a metal.
     if let Some((sigma, obj, base)) = c.patch
-        && c.metallic < 0.5
+        && (c.metallic < 0.5 || cfg.patch_metals)
         && preferred(cfg, c.patch_share)
     {
-        let m = cfg.patch_dielectric.then_some(0.0);
+        let m = cfg
+            .patch_dielectric
+            .then_some(if patch_as_metal(cfg, c.metallic) {
+                1.0
+            } else {
+                0.0
+            });
         options.push((Hypothesis::Patch, sigma, m, obj, base));
     }
     let gain = |obj: f64, base: f64| 1.0 - obj / base;
@@ -526,6 +534,12 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
         .collect()
 }
 
+/// Whether a segment of mean fitted m `metallic` has its patch hypothesis solved as a metal
+/// (`train.hop.patch_metals`, fitted m ≥ 0.5) rather than as a dielectric.
+fn patch_as_metal(cfg: &HopConfig, metallic: f64) -> bool {
+    cfg.patch_metals && metallic >= 0.5
+}
+
 /// Whether most of a segment's surface prefers its patch hypothesis (`train.hop.patch_majority`
 /// z): the share of its pixels whose cube scores lower at the hypothesis than at the fit lies
 /// no more than z standard errors of a fair coin's share, 0.5 / √(effective cubes), below a
@@ -542,22 +556,28 @@ fn preferred(cfg: &HopConfig, share: Option<(f64, f64)>) -> bool {
 }
 
 /// The σ the anchor holds a segment at in place of its fitted one (`train.hop.settle`), with
-/// m 0: on refined shadings, a dielectric's patch sweep minimum where it scores below the fit
-/// and lies within `min_move` of it (nearer than any hop goes; its data is flat there, and the
-/// prior decided where the fit left it); its fitted σ where its patch hypothesis counts by
-/// gain and distance but most of its surface prefers the fit (`preferred`: the hypothesis is
-/// a dielectric's, and so is the fit it loses to). None: held at its fitted σ and m.
+/// m 0: on refined shadings, a dielectric's patch sweep minimum where it lies within `min_move`
+/// of the fit (nearer than any hop goes; its data is flat there, and the prior decided where
+/// the fit left it), or its fitted σ where that minimum scores no lower than the fitted σ
+/// does (the minimum is the fit's σ, between two swept values); its fitted σ where its patch
+/// hypothesis counts by gain and distance but most of its surface prefers the fit
+/// (`preferred`: the hypothesis is a dielectric's, and so is the fit it loses to). None: held
+/// at its fitted σ and m.
 fn settled(cfg: &HopConfig, refined: bool, c: &SegmentObjective) -> Option<f64> {
     if !(cfg.settle && refined && cfg.anchor > 0.0) || c.metallic >= 0.5 {
         return None;
     }
     let (sigma, obj, base) = c.patch?;
-    if !(obj.is_finite() && obj < base) {
+    if !obj.is_finite() {
         return None;
     }
     let far = (sigma - c.sigma).abs();
     if far < cfg.min_move as f64 {
-        return Some(sigma);
+        // Where no swept σ scores below the fitted one, the patch minimum is the fit's σ.
+        return Some(if obj < base { sigma } else { c.sigma });
+    }
+    if obj >= base {
+        return None;
     }
     let (gain, min_move) = thresholds(cfg, Hypothesis::Patch);
     let counts = far >= min_move as f64 && 1.0 - obj / base >= gain as f64;
@@ -618,7 +638,8 @@ pub fn hop(
         (plan.cfg.patch > 0.0).then(|| PatchSegments::new(store, plan.cfg.patch * plan.footprint));
     if let Some(p) = &patches {
         for row in &mut segments {
-            if let Some((best, share)) = p.profile(&tr.model, row.segment) {
+            let metal = patch_as_metal(plan.cfg, row.metallic);
+            if let Some((best, share)) = p.profile(&tr.model, row.segment, metal) {
                 row.patch = Some(best);
                 row.patch_share = Some(share);
             }
@@ -680,7 +701,8 @@ pub fn hop(
             // A patch candidate is measured as it was proposed: with the colour solved per
             // patch.
             if let (true, Some(p)) = (patch, &patches) {
-                c.objective_after = p.at_model(&tr.model, c.segment);
+                let metal = patch_as_metal(plan.cfg, c.metallic);
+                c.objective_after = p.at_model(&tr.model, c.segment, metal);
             }
         }
         let kind = if patch {
@@ -869,12 +891,13 @@ impl<'a> PatchSegments<'a> {
     }
 
     /// Calls `f` with segment `id`'s pixels as a dielectric (m = 0: the hypothesis is a
-    /// dielectric of one σ) under the model's mask, their cubes and the model's mean σ over
-    /// them; None for a segment without pixels.
+    /// dielectric of one σ), or as a metal (m = 1) where `metal`, under the model's mask, their
+    /// cubes and the model's mean σ over them; None for a segment without pixels.
     fn with_pixels<R>(
         &self,
         model: &FiptModel,
         id: i32,
+        metal: bool,
         f: impl FnOnce(&[super::patches::PatchPixel], &[Vec<u32>], f32) -> R,
     ) -> Option<R> {
         let (idx, cubes) = self.segments.get(&id)?;
@@ -885,7 +908,7 @@ impl<'a> PatchSegments<'a> {
             .map(|i| super::patches::PatchPixel {
                 shading: ShadingLayout::pixel(&b.shadings, i),
                 gt: [b.gt[3 * i], b.gt[3 * i + 1], b.gt[3 * i + 2]],
-                metallic: 0.0,
+                metallic: if metal { 1.0 } else { 0.0 },
                 alpha: alpha[i],
             })
             .collect();
@@ -896,9 +919,9 @@ impl<'a> PatchSegments<'a> {
 
     /// The segment's best swept σ, the patch objective there, and at the model's mean σ; and
     /// how many of its cubes prefer that best σ to the mean σ (`patches::preference`).
-    fn profile(&self, model: &FiptModel, id: i32) -> Option<(PatchBest, PatchShare)> {
+    fn profile(&self, model: &FiptModel, id: i32, metal: bool) -> Option<(PatchBest, PatchShare)> {
         use super::patches::{objective, per_cube, preference};
-        self.with_pixels(model, id, |pixels, cubes, mean| {
+        self.with_pixels(model, id, metal, |pixels, cubes, mean| {
             let n = pixels.len().max(1) as f64;
             let per = |s: f32| per_cube(pixels, cubes, &move |_| s);
             let swept: Vec<f64> = sweep()
@@ -914,8 +937,8 @@ impl<'a> PatchSegments<'a> {
 
     /// The patch objective (mean per pixel) at the model's mean σ (NaN for a segment without
     /// pixels).
-    fn at_model(&self, model: &FiptModel, id: i32) -> f64 {
-        self.with_pixels(model, id, |pixels, cubes, mean| {
+    fn at_model(&self, model: &FiptModel, id: i32, metal: bool) -> f64 {
+        self.with_pixels(model, id, metal, |pixels, cubes, mean| {
             super::patches::objective(pixels, cubes, &move |_| mean) / pixels.len().max(1) as f64
         })
         .unwrap_or(f64::NAN)
@@ -1408,6 +1431,34 @@ mod tests {
         assert_eq!((d.len(), d[0].target, d[0].target_metallic), (1, 0.6, None));
     }
 
+    /// A segment fitted metallic has no patch candidate unless `patch_metals`; with it, its
+    /// patch hypothesis counts by the same gain and distance and hops as the metal it was solved
+    /// as, m pulled to 1.
+    #[test]
+    fn a_metal_hops_on_its_patch_only_with_patch_metals() {
+        let (cfg, mut rows) = one_flat_segment();
+        rows[0].metallic = 0.9;
+        rows[0].patch = Some((0.6, 0.9, 1.0));
+        assert!(candidates(&cfg, &rows).is_empty());
+        let metals = HopConfig {
+            patch_metals: true,
+            ..cfg.clone()
+        };
+        let c = candidates(&metals, &rows);
+        assert_eq!(
+            (c.len(), c[0].source, c[0].target, c[0].target_metallic),
+            (1, Hypothesis::Patch, 0.6, Some(1.0))
+        );
+        assert!(holds_metal(&metals, &c[0]));
+        // A dielectric still hops as one.
+        rows[0].metallic = 0.1;
+        assert_eq!(candidates(&metals, &rows)[0].target_metallic, Some(0.0));
+        // Too near is too near for a metal too.
+        rows[0].metallic = 0.9;
+        rows[0].patch = Some((0.7, 0.9, 1.0));
+        assert!(candidates(&metals, &rows).is_empty());
+    }
+
     /// With `patch_majority` z, a patch hypothesis that lowers the sum but that fewer than half
     /// of many cubes prefer does not count; over few cubes the same share cannot tell, and
     /// counts; null lets every share count. A patch candidate that falls back after an undone
@@ -1640,9 +1691,11 @@ mod tests {
         };
         assert_eq!(off(|c| c.anchor = 0.0), None);
         assert_eq!(off(|c| c.settle = false), None);
-        // A minimum that scores no lower, one a hop's distance away, and a metal: held as fitted.
-        rows[0].patch = Some((0.62, 1.0, 1.0));
-        assert_eq!(settled(&cfg, true, &rows[0]), None);
+        // A near minimum that scores no lower than the fitted σ: the minimum is the fit's σ,
+        // held there as a dielectric, m 0.
+        rows[0].patch = Some((0.78, 1.0, 1.0));
+        assert_eq!(settled(&cfg, true, &rows[0]), Some(0.8));
+        // One a hop's distance away, and a metal: held as fitted.
         rows[0].patch = Some((0.5, 0.9, 1.0));
         assert_eq!(settled(&cfg, true, &rows[0]), None);
         // That far hypothesis, where most of the surface prefers the fit (`patch_majority`):
@@ -1691,6 +1744,11 @@ mod tests {
     /// One segment of `n` pixels in four cubes, one base colour per cube, dielectric, whose
     /// photos are the factorised render at σ `truth`.
     fn rendered_store(n: usize, truth: f32) -> PixelStore {
+        rendered_store_m(n, truth, 0.0)
+    }
+
+    /// `rendered_store` at metallic `m`.
+    fn rendered_store_m(n: usize, truth: f32, m: f32) -> PixelStore {
         let mut st = toy_store(n);
         st.pixels.seg.iter_mut().for_each(|s| *s = 0);
         let d = ShadingLayout::DIM;
@@ -1706,7 +1764,7 @@ mod tests {
             }
             let sh = ShadingLayout::pixel(&st.pixels.shadings, i).to_vec();
             let a = glam::Vec3::new(0.2 + 0.2 * cube as f32, 0.4, 0.3);
-            let (kd, ks) = reflectances(a, 0.0);
+            let (kd, ks) = reflectances(a, m);
             let c = factorised_render(kd.to_array(), ks.to_array(), truth, &sh);
             st.pixels.gt[3 * i..3 * i + 3].copy_from_slice(&c);
         }
@@ -1753,5 +1811,30 @@ mod tests {
         );
         assert!(!rep.accepted);
         assert_eq!(rep.steps, 2 * 25);
+    }
+
+    /// On a metal's photos (m 1, σ 0.3, one colour per cube), the patch sweep solved as a metal
+    /// (`patch_metals`) puts its best σ near 0.3 and scores there below half its objective at
+    /// the fitted σ; solved as a dielectric, as without the key, it scores worse at its best.
+    #[test]
+    fn the_patch_hypothesis_as_a_metal_finds_a_metals_roughness() {
+        let truth = 0.3;
+        let st = rendered_store_m(400, truth, 1.0);
+        let (tr, _) = toy_fitted(&st);
+        // Cubes of side 1: the store's four.
+        let p = PatchSegments::new(&st, 1.0);
+        let profile = |patch_metals: bool| {
+            let hc = HopConfig {
+                patch_metals,
+                ..HopConfig::default()
+            };
+            let metal = patch_as_metal(&hc, 1.0);
+            p.profile(&tr.model, 0, metal).expect("patch profile").0
+        };
+        let (best, obj, at_fit) = profile(true);
+        assert!((best - truth as f64).abs() < 0.05, "best σ {best}");
+        assert!(obj < 0.5 * at_fit, "{obj} vs {at_fit}");
+        let (_, as_dielectric, _) = profile(false);
+        assert!(obj < 0.5 * as_dielectric, "{obj} vs {as_dielectric}");
     }
 }
