@@ -114,6 +114,9 @@ impl Default for RefineSection {
                 // The sharp lobes (levels 0 and 1) left unfiltered, as the bake leaves them
                 // (the reference filters all six); `docs/departures/bake-filter.md`.
                 filter: fipt_bake::filter::FilterConfig::default(),
+                // The pixels of parts seen in fewer than 16384 pixels path-traced again, up to
+                // 16 times (the reference traces each once); `docs/departures/small-parts.md`.
+                small_parts: 16384,
                 ..RefineConfig::default()
             },
         }
@@ -324,8 +327,10 @@ impl Default for TrainSection {
             // λ_d rises over the first three quarters of each fit and the σ, m logits are
             // bounded (the reference has neither); `docs/departures/`.
             lambda_d_warmup: 0.75,
-            min_coverage: 0.0,
-            coverage_crease: 180.0,
+            // The pixels that their centre's face covers less than three quarters of left out
+            // of the fits (the reference keeps every pixel); `docs/departures/min-coverage.md`.
+            min_coverage: 0.75,
+            coverage_crease: 30.0,
             seg: SegChoice::Auto,
             lambda_e: 1.0,
             lambda_d: 5e-4,
