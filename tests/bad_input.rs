@@ -316,9 +316,13 @@ fn values_out_of_range_beside_the_photos() {
 fn cover_planes_without_min_coverage() {
     let d = valid_scene("cover-planes");
     let out_dir = fresh_dir("cover-planes-out");
+    // `configs/fast.json` leaves every pixel in (`train.min_coverage` 0; the default's is 0.75).
+    let fast = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/fast.json");
     let args = [
         "landscape".as_ref(),
         "--cover-planes".as_ref(),
+        "--config".as_ref(),
+        fast.as_os_str(),
         "--scene".as_ref(),
         d.as_os_str(),
         "--out".as_ref(),
