@@ -1823,14 +1823,7 @@ mod tests {
         let (tr, _) = toy_fitted(&st);
         // Cubes of side 1: the store's four.
         let p = PatchSegments::new(&st, 1.0);
-        let profile = |patch_metals: bool| {
-            let hc = HopConfig {
-                patch_metals,
-                ..HopConfig::default()
-            };
-            let metal = patch_as_metal(&hc, 1.0);
-            p.profile(&tr.model, 0, metal).expect("patch profile").0
-        };
+        let profile = |metal: bool| p.profile(&tr.model, 0, metal).expect("patch profile").0;
         let (best, obj, at_fit) = profile(true);
         assert!((best - truth as f64).abs() < 0.05, "best σ {best}");
         assert!(obj < 0.5 * at_fit, "{obj} vs {at_fit}");
