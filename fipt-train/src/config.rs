@@ -613,6 +613,11 @@ pub struct HopConfig {
     /// metal (m = 1, the colour per cube its F0), and hop them as the metal it was solved as
     /// (false: dielectrics only).
     pub patch_metals: bool,
+    /// A kept hop that harmed a segment not hopping (its objective up by more than the hop's
+    /// `gain`, its mean σ moved by at least the hop's `min_move` from where it was held) runs
+    /// again from the same start with that segment pulled where it was, at `pull` (false: the
+    /// hop is judged on its candidates alone).
+    pub guard: bool,
 }
 
 impl Default for HopConfig {
@@ -636,6 +641,7 @@ impl Default for HopConfig {
             hold_metals: 0.1,
             patch_majority: Some(2.0),
             patch_metals: false,
+            guard: false,
         }
     }
 }

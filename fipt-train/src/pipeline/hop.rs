@@ -156,6 +156,10 @@ pub struct HopReport {
     /// The λ_d the objectives above hold (`prior` × the fit's final λ_d; 0: the data term).
     #[serde(default)]
     pub lambda_d: f64,
+    /// The segments a kept hop harmed, held where they were on its second try
+    /// (`train.hop.guard`).
+    #[serde(default)]
+    pub guarded: Vec<i32>,
 }
 
 /// One segment's pixels in the evaluation: its id, its size in the store, the entries used.
@@ -679,6 +683,8 @@ pub fn hop(
             (s.id, sigma, m)
         })
         .collect();
+    // Each segment's objective as the next hop finds it.
+    let mut entering: Vec<f64> = before.iter().map(|e| e.own).collect();
     for patch in [false, true] {
         let group: Vec<usize> = (0..cands.len())
             .filter(|&k| (cands[k].source == Hypothesis::Patch) == patch)
@@ -687,30 +693,47 @@ pub fn hop(
             continue;
         }
         let mut chosen: Vec<HopCandidate> = group.iter().map(|&k| cands[k].clone()).collect();
-        let kept = tr.clone();
-        let (hopped, steps) = hop_phases(tr, store, plan, &chosen, &held_at, patch)?;
-        tr = hopped;
-        report.steps += steps;
-        after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
-        for c in &mut chosen {
-            if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
-                c.sigma_after = after[k].sigma;
-                c.metallic_after = after[k].metallic;
-                c.objective_after = after[k].own;
-            }
-            // A patch candidate is measured as it was proposed: with the colour solved per
-            // patch.
-            if let (true, Some(p)) = (patch, &patches) {
-                let metal = patch_as_metal(plan.cfg, c.metallic);
-                c.objective_after = p.at_model(&tr.model, c.segment, metal);
-            }
-        }
         let kind = if patch {
             Hypothesis::Patch
         } else {
             Hypothesis::Sweep
         };
-        let helped = hop_helped(&chosen, thresholds(plan.cfg, kind).0);
+        let kept = tr.clone();
+        let mut guards: Vec<(i32, f64, f64)> = Vec::new();
+        let mut helped = false;
+        // A first try; with `guard`, a second from the same start where the first harmed a
+        // segment that was not hopping, that segment held where it was.
+        for attempt in 0..2 {
+            let start = if attempt == 0 { tr } else { kept.clone() };
+            let (hopped, steps) =
+                hop_phases(start, store, plan, &chosen, &guards, &held_at, patch)?;
+            tr = hopped;
+            report.steps += steps;
+            after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
+            for c in &mut chosen {
+                if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
+                    c.sigma_after = after[k].sigma;
+                    c.metallic_after = after[k].metallic;
+                    c.objective_after = after[k].own;
+                }
+                // A patch candidate is measured as it was proposed: with the colour solved
+                // per patch.
+                if let (true, Some(p)) = (patch, &patches) {
+                    let metal = patch_as_metal(plan.cfg, c.metallic);
+                    c.objective_after = p.at_model(&tr.model, c.segment, metal);
+                }
+            }
+            helped = hop_helped(&chosen, thresholds(plan.cfg, kind).0);
+            if attempt > 0 || !(helped && plan.cfg.guard) {
+                break;
+            }
+            let hopping: Vec<i32> = chosen.iter().map(|c| c.segment).collect();
+            guards = harmed(plan.cfg, kind, &hopping, &entering, &after, &held_at);
+            if guards.is_empty() {
+                break;
+            }
+            report.guarded.extend(guards.iter().map(|g| g.0));
+        }
         if patch {
             report.patch_accepted = Some(helped);
         } else {
@@ -720,6 +743,7 @@ pub fn hop(
             tr = kept;
             after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
         }
+        entering = after.iter().map(|e| e.own).collect();
         for (&k, c) in group.iter().zip(chosen) {
             cands[k] = c;
         }
@@ -743,19 +767,48 @@ pub fn hop(
     Ok((tr, report))
 }
 
+/// The segments a kept hop harmed (`train.hop.guard`), with the σ and m to hold them at: those
+/// not hopping whose objective rose by more than the hop's own `gain` (the share that calls
+/// for a hop of that kind) while their mean σ left where the anchor held them (`held_at`) by at
+/// least its `min_move` (as far as such a hop goes). The extra steps move a flat segment's σ
+/// without raising its objective; a segment the hopping ones carried off its own minimum both
+/// moves and scores worse.
+fn harmed(
+    cfg: &HopConfig,
+    kind: Hypothesis,
+    hopping: &[i32],
+    entering: &[f64],
+    after: &[SegmentEval],
+    held_at: &[(i32, f64, f64)],
+) -> Vec<(i32, f64, f64)> {
+    let (gain, min_move) = thresholds(cfg, kind);
+    held_at
+        .iter()
+        .zip(entering.iter().zip(after))
+        .filter(|(h, (was, a))| {
+            !hopping.contains(&h.0)
+                && a.own > (1.0 + gain as f64) * **was
+                && (a.sigma - h.1).abs() >= min_move as f64
+        })
+        .map(|(h, _)| *h)
+        .collect()
+}
+
 /// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
 /// names one) pulled to their targets, then as many steps again released, except with `held`
 /// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
 /// alone would take them back) and, with `hold_metals` > 0, the candidates that hop as metals,
 /// pulled at that weight (with the colour free again the data is flat over a mirror's σ, and
 /// the prior takes it rough). Where `anchor` > 0, every other segment of `held_at` (segment,
-/// mean σ, mean m) is pulled to its σ and m through both phases. Returns the hopped trainer and
-/// the steps run.
+/// mean σ, mean m) is pulled to its σ and m through both phases. `guards` (segment, σ, m) are
+/// pulled like the candidates, through the pull phase and, where `held`, the release too.
+/// Returns the hopped trainer and the steps run.
 fn hop_phases(
     mut tr: Trainer,
     store: &PixelStore,
     plan: &HopPlan,
     chosen: &[HopCandidate],
+    guards: &[(i32, f64, f64)],
     held_at: &[(i32, f64, f64)],
     held: bool,
 ) -> anyhow::Result<(Trainer, usize)> {
@@ -783,7 +836,12 @@ fn hop_phases(
             .filter_map(|c| Some((c.segment, c.target_metallic? as f32)))
             .collect(),
     };
-    let pull = pull_of(&chosen.iter().collect::<Vec<_>>(), plan.cfg.pull);
+    let mut pull = pull_of(&chosen.iter().collect::<Vec<_>>(), plan.cfg.pull);
+    // The guarded segments, pulled where they were as the candidates are to their targets.
+    for &(segment, sigma, m) in guards {
+        pull.target.insert(segment, sigma as f32);
+        pull.metallic.insert(segment, m as f32);
+    }
     // The pull of the release phase: the same where `held`, else the candidates that hop as
     // metals at `hold_metals` (None: none).
     let release = if held {
@@ -1559,7 +1617,7 @@ mod tests {
             Hypothesis::Sweep,
             None,
         )];
-        let moved = |anchor: f32| {
+        let moved = |anchor: f32, guards: &[(i32, f64, f64)]| {
             let hc = HopConfig {
                 steps: 2.0,
                 pull: 10.0,
@@ -1567,7 +1625,8 @@ mod tests {
                 ..HopConfig::default()
             };
             let plan = toy_plan(&hc, &schedule, 5e-4, 0.01);
-            let (out, _) = hop_phases(tr.clone(), &st, &plan, &chosen, &held_at, true).unwrap();
+            let (out, _) =
+                hop_phases(tr.clone(), &st, &plan, &chosen, guards, &held_at, true).unwrap();
             let after = at(&out);
             let others = 1..samples.len();
             let drift = others
@@ -1587,8 +1646,11 @@ mod tests {
         };
         // The toy's small networks share most of what σ depends on: free, every segment goes
         // where the pulled one goes.
-        let (free, free_apart) = moved(0.0);
-        let (held, held_apart) = moved(10.0);
+        let (free, free_apart) = moved(0.0, &[]);
+        let (held, held_apart) = moved(10.0, &[]);
+        // Guarded (`guard`), the others are pulled where they were as the candidate is to its
+        // target, without the anchor.
+        let (guarded, guarded_apart) = moved(0.0, &held_at[1..]);
         assert!(
             free > 0.05,
             "without the anchor the others moved only {free}"
@@ -1601,6 +1663,53 @@ mod tests {
             held_apart > free_apart + 0.03,
             "the hopping segment {held_apart} apart from the others held, {free_apart} free"
         );
+        assert!(
+            guarded < 0.5 * free && guarded_apart > free_apart + 0.03,
+            "guarded, the others moved {guarded} (free {free}), the hopping one {guarded_apart} \
+             apart (free {free_apart})"
+        );
+    }
+
+    /// `guard` names the segments a kept hop harmed: not hopping, their objective up by more
+    /// than the hop's gain and their σ moved by at least its `min_move` from where they were
+    /// held; with the σ and m to hold them at.
+    #[test]
+    fn the_guard_names_the_segments_a_hop_harmed() {
+        let cfg = HopConfig {
+            patch_gain: 0.01,
+            patch_min_move: 0.15,
+            gain: 0.05,
+            min_move: 0.25,
+            ..HopConfig::default()
+        };
+        let held_at = [
+            (0, 0.9, 0.0),
+            (1, 0.3, 0.6),
+            (2, 0.9, 0.0),
+            (3, 0.9, 0.0),
+            (4, 0.5, 0.0),
+        ];
+        let entering = [1e-3; 5];
+        // 2 % worse: past the patch hop's gain (1 %), short of the sweep's (5 %).
+        let worse = 1.02e-3;
+        let after = [
+            // Hopping: it moves and scores worse, and is the hop's to judge.
+            eval(0.2, worse, 0, 0.0),
+            // Carried off its minimum: moved by 0.26, and worse.
+            eval(0.04, worse, 0, 0.0),
+            // Moved by 0.3 on flat data: 0.5 % worse.
+            eval(0.6, 1.005e-3, 0, 0.0),
+            // Worse but 0.1 from where it was held.
+            eval(0.8, worse, 0, 0.0),
+            // Moved up by 0.3, and worse.
+            eval(0.8, worse, 0, 0.0),
+        ];
+        let got = harmed(&cfg, Hypothesis::Patch, &[0], &entering, &after, &held_at);
+        assert_eq!(got, vec![(1, 0.3, 0.6), (4, 0.5, 0.0)]);
+        assert!(harmed(&cfg, Hypothesis::Sweep, &[0], &entering, &after, &held_at).is_empty());
+        // Without the hopping segment named, it is a bystander like any other.
+        let all = harmed(&cfg, Hypothesis::Patch, &[], &entering, &after, &held_at);
+        assert_eq!(all[0], (0, 0.9, 0.0));
     }
 
     /// With `hold_metals`, a candidate hopping as a metal stays pulled through the release
@@ -1644,8 +1753,16 @@ mod tests {
         assert!(holds_metal(&hold, &fitted_metal));
         let hopped = |cfg: &HopConfig, c: &HopCandidate| {
             let plan = toy_plan(cfg, &schedule, 5e-4, 0.01);
-            let (out, _) =
-                hop_phases(tr.clone(), &st, &plan, std::slice::from_ref(c), &[], false).unwrap();
+            let (out, _) = hop_phases(
+                tr.clone(),
+                &st,
+                &plan,
+                std::slice::from_ref(c),
+                &[],
+                &[],
+                false,
+            )
+            .unwrap();
             let a = at(&out);
             (a[0].sigma, a[0].metallic)
         };
