@@ -639,7 +639,7 @@ impl Default for HopConfig {
             settle: true,
             patch_dielectric: true,
             hold_metals: 0.1,
-            patch_majority: Some(2.0),
+            patch_majority: Some(0.0),
             patch_metals: false,
             guard: false,
         }

@@ -1519,12 +1519,15 @@ mod tests {
 
     /// With `patch_majority` z, a patch hypothesis that lowers the sum but that fewer than half
     /// of many cubes prefer does not count; over few cubes the same share cannot tell, and
-    /// counts; null lets every share count. A patch candidate that falls back after an undone
-    /// first hop is held to the same test.
+    /// counts; z 0 asks for a half whatever the cubes; null lets every share count. A patch
+    /// candidate that falls back after an undone first hop is held to the same test.
     #[test]
     fn a_patch_hypothesis_needs_most_of_the_surface() {
         let (cfg, mut rows) = one_flat_segment();
-        assert_eq!(cfg.patch_majority, Some(2.0));
+        let cfg = HopConfig {
+            patch_majority: Some(2.0),
+            ..cfg
+        };
         rows[0].patch = Some((0.6, 0.97, 1.0));
         let mut with = |cfg: &HopConfig, share: Option<(f64, f64)>| {
             rows[0].patch_share = share;
@@ -1538,6 +1541,14 @@ mod tests {
         assert_eq!(with(&cfg, Some((0.3, 16.0))), 1);
         assert_eq!(with(&cfg, Some((0.2, 16.0))), 0);
         assert_eq!(with(&cfg, None), 1);
+        let half = HopConfig {
+            patch_majority: Some(0.0),
+            ..cfg.clone()
+        };
+        assert_eq!(with(&half, Some((0.49, 4000.0))), 0);
+        assert_eq!(with(&half, Some((0.3, 16.0))), 0);
+        assert_eq!(with(&half, Some((0.5, 16.0))), 1);
+        assert_eq!(with(&half, Some((0.6, 4000.0))), 1);
         let off = HopConfig {
             patch_majority: None,
             ..cfg.clone()
