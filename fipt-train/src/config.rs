@@ -605,9 +605,10 @@ pub struct HopConfig {
     /// names one, through the release phase in place of releasing it (0: released, like every
     /// other candidate but the patch candidates).
     pub hold_metals: f32,
-    /// A patch hypothesis counts only where most of its segment's surface prefers it: the
-    /// share of its pixels whose cube (`patch`) scores lower at the hypothesis than at the fit
-    /// may lie at most this many standard errors (0.5 / √cubes) below a half (null: off).
+    /// A patch hypothesis counts only where about half or more of its segment's surface prefers
+    /// it: the share of its pixels whose cube (`patch`) scores lower at the hypothesis than at
+    /// the fit may lie at most this many standard errors (0.5 / √cubes) below a half (0: a half;
+    /// null: off).
     pub patch_majority: Option<f32>,
     /// Also solve the patch hypothesis for the segments fitted metallic (mean m ≥ 0.5), as a
     /// metal (m = 1, the colour per cube its F0), and hop them as the metal it was solved as

@@ -14,9 +14,10 @@
 //! `settle`, the anchor holds a dielectric of a refined round at its patch hypothesis (its
 //! sweep's nearby minimum, and m = 0) rather than where the prior left it. With `hold_metals`,
 //! a candidate that hops as a metal stays pulled to its target through the release phase.
-//! With `patch_majority`, a patch hypothesis counts only where most of the segment's cubes
-//! prefer it (`patches::preference`), and a refined round's dielectric whose far patch
-//! hypothesis fails that test is settled at its fitted σ with m = 0.
+//! With `patch_majority` z, a patch hypothesis counts only where the share of the segment's
+//! cubes that prefer it lies at most z standard errors below a half (`patches::preference`),
+//! and a refined round's dielectric whose far patch hypothesis fails that test is settled at
+//! its fitted σ with m = 0.
 //!
 //! Why: with the factorised renderer the objective over σ is flat or multi-modal on glossy
 //! dielectrics (a rough lobe is nearly flat over σ ∈ [0.8, 1]), and the basin a part settles in
@@ -1517,10 +1518,11 @@ mod tests {
         assert!(candidates(&metals, &rows).is_empty());
     }
 
-    /// With `patch_majority` z, a patch hypothesis that lowers the sum but that fewer than half
-    /// of many cubes prefer does not count; over few cubes the same share cannot tell, and
-    /// counts; z 0 asks for a half whatever the cubes; null lets every share count. A patch
-    /// candidate that falls back after an undone first hop is held to the same test.
+    /// With `patch_majority` z, a patch hypothesis that lowers the sum but that well under half
+    /// of many cubes prefer (more than z standard errors below) does not count; over few cubes
+    /// the same share cannot tell, and counts; z 0 asks for a half whatever the cubes; null lets
+    /// every share count. A patch candidate that falls back after an undone first hop is held to
+    /// the same test.
     #[test]
     fn a_patch_hypothesis_needs_most_of_the_surface() {
         let (cfg, mut rows) = one_flat_segment();
