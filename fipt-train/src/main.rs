@@ -123,6 +123,15 @@ enum Cmd {
         /// of one part (a box's edge) leave too.
         #[arg(long)]
         cover_planes: bool,
+        /// Also the shadings with part of the oracle swapped for the model in OUT/model (left
+        /// by `run`): its materials with its emitters, with the true emitters, and the true
+        /// materials with its emitters, each through the oracle's paths and radiance cache.
+        #[arg(long)]
+        swap: bool,
+        /// With --swap, also the true scene with this part's material the model's (a name in
+        /// scene_meta.json; repeat the flag or separate names with commas).
+        #[arg(long, value_delimiter = ',', requires = "swap")]
+        swap_part: Vec<String>,
     },
     /// Recompute the metrics from the maps a previous `run` saved (or, with --model, from a
     /// scene model's predictions).
@@ -542,12 +551,15 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             fitted,
             json,
             cover_planes,
+            swap,
+            swap_part,
         } => {
             let cfg = job.config()?;
             let what = pipeline::landscape_cmd::Tables {
                 oracle,
                 fitted,
                 cover_planes,
+                swap: swap.then_some(swap_part),
             };
             let tables = pipeline::landscapes(&job.scene, &job.out, &cfg, what, json)?;
             if json {

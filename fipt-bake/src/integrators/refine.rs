@@ -77,6 +77,12 @@ pub struct RefineConfig {
     /// `passes`).
     #[serde(default)]
     pub small_parts: u32,
+    /// Path vertices where no photo saw the surface read their part's mean fitted material
+    /// (`materials::Unseen`) instead of the field, which nothing constrained there: "seen" is
+    /// a cell of this many L′ voxels a side that holds a training pixel's first hit (0: the
+    /// field everywhere, the reference). Applied by the caller that builds the materials.
+    #[serde(default)]
+    pub unseen_cell: usize,
     /// The filter on the result (the reference denoises all 13 images).
     pub filter: crate::filter::FilterConfig,
     /// Paths per wavefront (memory bound only).
@@ -102,6 +108,7 @@ impl Default for RefineConfig {
             observed_sides: false,
             footprint: 0,
             small_parts: 0,
+            unseen_cell: 0,
             filter: crate::filter::FilterConfig {
                 specular_levels: (0..6).collect(),
                 ..Default::default()

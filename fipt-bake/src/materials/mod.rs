@@ -2,7 +2,8 @@
 //! wavefront of hit points at once (positions + triangle ids → base colour a, roughness σ,
 //! metallic m). Implementations: the true scene of a `scene_meta.json` (`scene_meta`); a voxel
 //! cache of per-voxel means in front of another source (`voxel`); appended geometry over another
-//! source (`overlay`); a memo of points already answered (`memo`); the learned model lives in
+//! source (`overlay`); two sources split by triangle (`split`); part means where no photo saw the
+//! surface (`unseen`); a memo of points already answered (`memo`); the learned model lives in
 //! fipt-train (burn inference), behind the same trait.
 //!
 //! Owns: the trait and the true-scene source. Must not touch: light transport.
@@ -10,6 +11,8 @@
 pub mod memo;
 pub mod overlay;
 pub mod scene_meta;
+pub mod split;
+pub mod unseen;
 pub mod voxel;
 
 use glam::Vec3;
@@ -17,6 +20,8 @@ use glam::Vec3;
 pub use memo::Memo;
 pub use overlay::Overlay;
 pub use scene_meta::TrueMaterials;
+pub use split::Split;
+pub use unseen::Unseen;
 pub use voxel::VoxelMaterials;
 
 /// The FIPT BRDF parameters at one surface point (paper Eq. 1).

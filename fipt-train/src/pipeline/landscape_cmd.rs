@@ -13,7 +13,7 @@ use anyhow::Result;
 use std::path::Path;
 
 /// Which tables `landscapes` adds to the baked and refined shadings' and how it chooses pixels.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct Tables {
     /// The oracle shadings' table (computed and cached).
     pub oracle: bool,
@@ -21,6 +21,9 @@ pub struct Tables {
     pub fitted: bool,
     /// Coverage measured per plane of the mesh instead of per part.
     pub cover_planes: bool,
+    /// The tables of the shadings with part of the oracle swapped for the model in `out/model`
+    /// (`refine::swapped`), one more per part named here.
+    pub swap: Option<Vec<String>>,
 }
 
 /// `fipt-train landscape`: the per-part loss landscape of the baked shadings, of every refined
@@ -41,6 +44,7 @@ pub fn landscapes(
         oracle,
         fitted,
         cover_planes,
+        swap,
     } = what;
     if cover_planes && cfg.train.min_coverage <= 0.0 {
         anyhow::bail!(
@@ -55,6 +59,10 @@ pub fn landscapes(
     };
     let ctx = RunContext::load(scene, out, cfg, &opts)?;
     let ds = &ctx.ds;
+    if let Some(parts) = &swap {
+        // Unknown part names fail before anything is traced.
+        refine::part_triangles(scene, ds, parts)?;
+    }
     let maps = if fitted {
         Some(score::read_train_maps(ds, out)?)
     } else {
@@ -124,6 +132,17 @@ pub fn landscapes(
             "oracle".to_string(),
             with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, &left), &s),
         ));
+    }
+    if let Some(parts) = swap {
+        let dir = out.join("model");
+        let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
+        let m = crate::scene_model::SceneModel::load(&dir, &device)?;
+        for (name, s) in refine::swapped(&ctx, &baked, &m.model, &m.emitters, &parts)? {
+            tables.push((
+                name,
+                with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, &left), &s),
+            ));
+        }
     }
     let json: serde_json::Map<String, serde_json::Value> = tables
         .iter()

@@ -19,7 +19,7 @@ use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathScene, PathStats, RadianceCache};
 use fipt_bake::integrators::refine::{RefineConfig, refine_view};
 use fipt_bake::lightfield::LightField;
-use fipt_bake::materials::{MaterialSource, SurfaceMaterial, VoxelMaterials};
+use fipt_bake::materials::{MaterialSource, SurfaceMaterial, Unseen, VoxelMaterials};
 use fipt_core::io::Fnv64;
 use fipt_core::model::FiptModel;
 use fipt_core::scene::Dataset;
@@ -98,7 +98,8 @@ pub fn refine(
     let learned = LearnedMaterials::new(model.clone(), mesh.num_triangles(), &emitter_tris);
     // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
     // always go to the learned source (black).
-    let voxels = job.material_cache.then(|| {
+    let lf = job.light_field;
+    let known = (job.material_cache || job.cfg.unseen_cell > 0).then(|| {
         let mv = model.material(&store.pixels.x_unit, &store.pixels.part);
         let mats: Vec<SurfaceMaterial> = (0..store.len())
             .map(|i| SurfaceMaterial {
@@ -113,24 +114,61 @@ pub fn refine(
             .iter()
             .map(|p| Vec3::from(*p))
             .collect();
-        let lf = job.light_field;
-        VoxelMaterials::build(
-            lf.scene_box,
-            lf.res,
-            &points,
-            &mats,
-            &learned,
-            learned.black().to_vec(),
-        )
+        (points, mats)
     });
+    // Where no training pixel saw the surface, the part's mean (`refine.paths.unseen_cell`).
+    let unseen = known
+        .as_ref()
+        .filter(|_| job.cfg.unseen_cell > 0)
+        .map(|(p, m)| {
+            let keys = super::bake::part_keys(mesh, &job.ds.train, &job.baked.hits);
+            Unseen::build(
+                lf.scene_box,
+                lf.res.div_ceil(job.cfg.unseen_cell),
+                (p, &store.tri, m),
+                &keys,
+                learned.black(),
+                &learned,
+            )
+        });
+    let field: &dyn MaterialSource = unseen.as_ref().map_or(&learned, |u| u as _);
+    let voxels = known
+        .as_ref()
+        .filter(|_| job.material_cache)
+        .map(|(points, mats)| {
+            VoxelMaterials::build(
+                lf.scene_box,
+                lf.res,
+                points,
+                mats,
+                field,
+                learned.black().to_vec(),
+            )
+        });
     let source: &dyn MaterialSource = match &voxels {
         Some(v) => v,
-        None => &learned,
+        None => field,
     };
-    let lights = EmitterSet::with_sides(
+    let lights = learned_lights(mesh, emitters, job.cfg);
+    let (shadings, stats) = refine_with(job, source, &lights)?;
+    Ok(Refined {
+        shadings,
+        stats,
+        material_voxels: voxels.as_ref().map_or(0, VoxelMaterials::len),
+    })
+}
+
+/// The extracted emitters as the refinement's lights: from the sides the photos saw them from
+/// with `observed_sides`, else from both; uniform selection.
+fn learned_lights(
+    mesh: &fipt_core::scene::Mesh,
+    emitters: &[Emitter],
+    cfg: &RefineConfig,
+) -> EmitterSet {
+    EmitterSet::with_sides(
         mesh,
         emitters.iter().map(|e| {
-            let sides = if job.cfg.observed_sides {
+            let sides = if cfg.observed_sides {
                 e.observed_sides()
             } else {
                 EmitterSides::Both
@@ -138,13 +176,7 @@ pub fn refine(
             (e.triangle, Vec3::from(e.radiance), sides)
         }),
         LightSelection::Uniform,
-    );
-    let (shadings, stats) = refine_with(job, source, &lights)?;
-    Ok(Refined {
-        shadings,
-        stats,
-        material_voxels: voxels.as_ref().map_or(0, VoxelMaterials::len),
-    })
+    )
 }
 
 /// Path-traces the shadings of the job's training views with any material source and
@@ -236,8 +268,13 @@ pub fn oracle(scene_dir: &std::path::Path, job: &RefineJob) -> anyhow::Result<Ve
     };
     let ntri = ds.mesh.num_triangles();
     let materials = fipt_bake::materials::TrueMaterials::load(scene_dir, &meta_path, meta, ntri)?;
-    let emission = meta.triangle_emission(ntri);
-    let lights = EmitterSet::new(
+    Ok(refine_with(job, &materials, &true_lights(ds, meta))?.0)
+}
+
+/// The scene's true emitters, one-sided as Mitsuba rendered them, uniform selection.
+fn true_lights(ds: &Dataset, meta: &fipt_core::scene::meta::SceneMeta) -> EmitterSet {
+    let emission = meta.triangle_emission(ds.mesh.num_triangles());
+    EmitterSet::new(
         &ds.mesh,
         emission
             .iter()
@@ -245,8 +282,108 @@ pub fn oracle(scene_dir: &std::path::Path, job: &RefineJob) -> anyhow::Result<Ve
             .map(|(t, e)| (t as u32, Vec3::from(*e))),
         false,
         LightSelection::Uniform,
+    )
+}
+
+/// Per name in `parts`, which triangles of the scene's mesh its part holds; an error that
+/// lists the scene's parts where one is missing, or where the scene has no `scene_meta.json`.
+pub fn part_triangles(
+    scene: &std::path::Path,
+    ds: &Dataset,
+    parts: &[String],
+) -> anyhow::Result<Vec<(String, Vec<bool>)>> {
+    let meta_path = scene.join("scene_meta.json");
+    let Some(meta) = ds.meta.as_ref() else {
+        anyhow::bail!(
+            "{}: swapping parts needs the scene's true materials (missing)",
+            meta_path.display()
+        );
+    };
+    let part_of = meta.triangle_part(ds.mesh.num_triangles());
+    parts
+        .iter()
+        .map(|name| {
+            let Some(p) = meta.parts.iter().find(|p| &p.name == name) else {
+                let names: Vec<&str> = meta.parts.iter().map(|p| p.name.as_str()).collect();
+                anyhow::bail!(
+                    "{}: no part named {name:?} (its parts: {})",
+                    meta_path.display(),
+                    names.join(", ")
+                );
+            };
+            Ok((name.clone(), part_of.iter().map(|&q| q == p.id).collect()))
+        })
+        .collect()
+}
+
+/// The shadings of every training view with part of the oracle swapped for a fitted model's
+/// (`fipt-train landscape --swap`): its material field (exact queries) with its emitters, with
+/// the true emitters, and the true materials with its emitters; then, per name in `parts`,
+/// the true scene with that part's material the model's. As (name, shadings). All go through
+/// the oracle's paths and radiance cache, so that against the oracle's shadings each differs
+/// by what it swaps alone.
+pub fn swapped(
+    ctx: &RunContext,
+    baked: &Baked,
+    model: &FiptModel,
+    emitters: &[Emitter],
+    parts: &[String],
+) -> anyhow::Result<Vec<(String, Vec<Vec<f32>>)>> {
+    let ds = &ctx.ds;
+    let meta_path = ctx.scene.join("scene_meta.json");
+    let Some(meta) = ds.meta.as_ref() else {
+        anyhow::bail!(
+            "{}: swapped shadings need the scene's true materials (missing)",
+            meta_path.display()
+        );
+    };
+    let ntri = ds.mesh.num_triangles();
+    let truth = fipt_bake::materials::TrueMaterials::load(ctx.scene, &meta_path, meta, ntri)?;
+    let rcfg = ctx.cfg.oracle_paths();
+    let lf = oracle_light_field(ctx, baked, &rcfg);
+    let all: Vec<usize> = (0..ds.train.views.len()).collect();
+    let job = oracle_job(ctx, baked, &rcfg, lf.as_ref(), &all);
+    let (fitted, real) = (
+        learned_lights(&ds.mesh, emitters, &rcfg),
+        true_lights(ds, meta),
     );
-    Ok(refine_with(job, &materials, &lights)?.0)
+    // Each material source is black on the triangles that end paths as emitters.
+    let learned = |lights: &[u32]| LearnedMaterials::new(model.clone(), ntri, lights);
+    let fitted_tris: Vec<u32> = emitters.iter().map(|e| e.triangle).collect();
+    let real_tris: Vec<u32> = meta
+        .triangle_emission(ntri)
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| e.iter().any(|&c| c > 0.0))
+        .map(|(t, _)| t as u32)
+        .collect();
+    let mut out = vec![
+        (
+            "model".to_string(),
+            refine_with(&job, &learned(&fitted_tris), &fitted)?.0,
+        ),
+        (
+            "model, true emitters".to_string(),
+            refine_with(&job, &learned(&real_tris), &real)?.0,
+        ),
+        (
+            "true materials, model emitters".to_string(),
+            refine_with(&job, &truth, &fitted)?.0,
+        ),
+    ];
+    let model_materials = learned(&real_tris);
+    for (name, from_second) in part_triangles(ctx.scene, ds, parts)? {
+        let split = fipt_bake::materials::Split {
+            first: &truth,
+            second: &model_materials,
+            from_second,
+        };
+        out.push((
+            format!("true scene, the model's {name}"),
+            refine_with(&job, &split, &real)?.0,
+        ));
+    }
+    Ok(out)
 }
 
 /// The specular radiance k_s·L_s0(σ) + L_s1(σ) of the true materials (the train views' base
@@ -298,10 +435,40 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
         return Ok(s);
     }
     let all: Vec<usize> = (0..ds.train.views.len()).collect();
-    // The cache's L′ without the pixels next to the true emitters, as the refinement's leaves
-    // out those next to the extracted ones.
-    // With `cache_diffuse`, the photos less the true materials' specular radiance.
-    let rebuilt: Option<LightField> = match (&ds.meta, rcfg.cache_margin) {
+    let rebuilt = oracle_light_field(ctx, baked, &rcfg);
+    let job = oracle_job(ctx, baked, &rcfg, rebuilt.as_ref(), &all);
+    let s = oracle(ctx.scene, &job)?;
+    crate::cache::save(&path, key, w, hh, &s)?;
+    Ok(s)
+}
+
+/// The oracle's refinement job over `views`: exact material queries, through `light_field`
+/// (`oracle_light_field`; None: the bake's L′).
+fn oracle_job<'a>(
+    ctx: &'a RunContext,
+    baked: &'a Baked,
+    cfg: &'a RefineConfig,
+    light_field: Option<&'a LightField>,
+    views: &'a [usize],
+) -> RefineJob<'a> {
+    RefineJob {
+        ds: &ctx.ds,
+        accel: &ctx.accel,
+        baked,
+        light_field: light_field.unwrap_or(&baked.light_field),
+        cfg,
+        views,
+        material_cache: false,
+        show_progress: ctx.progress(),
+    }
+}
+
+/// The oracle's radiance cache: L′ without the pixels next to the true emitters, as the
+/// refinement's leaves out those next to the extracted ones; with `cache_diffuse`, the photos
+/// less the true materials' specular radiance. None: the bake's L′.
+fn oracle_light_field(ctx: &RunContext, baked: &Baked, rcfg: &RefineConfig) -> Option<LightField> {
+    let ds = &ctx.ds;
+    match (&ds.meta, rcfg.cache_margin) {
         (Some(meta), m) if m > 0 || rcfg.cache_diffuse => {
             let emission = meta.triangle_emission(ds.mesh.num_triangles());
             let lit = |t: i32| emission[t as usize].iter().any(|&c| c > 0.0);
@@ -325,18 +492,5 @@ pub fn oracle_cached(ctx: &RunContext, baked: &Baked) -> anyhow::Result<Vec<Vec<
             }
         }
         _ => None,
-    };
-    let job = RefineJob {
-        ds,
-        accel: &ctx.accel,
-        baked,
-        light_field: rebuilt.as_ref().unwrap_or(&baked.light_field),
-        cfg: &rcfg,
-        views: &all,
-        material_cache: false,
-        show_progress: ctx.progress(),
-    };
-    let s = oracle(ctx.scene, &job)?;
-    crate::cache::save(&path, key, w, hh, &s)?;
-    Ok(s)
+    }
 }
