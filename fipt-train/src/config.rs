@@ -434,6 +434,8 @@ impl Config {
     pub fn oracle_paths(&self) -> RefineConfig {
         RefineConfig {
             seed: self.seeds().oracle(),
+            // The oracle reads the true materials everywhere.
+            unseen_cell: 0,
             ..self.refine.paths.clone()
         }
     }

@@ -79,8 +79,9 @@ pub struct RefineConfig {
     pub small_parts: u32,
     /// Path vertices where no photo saw the surface read their part's mean fitted material
     /// (`materials::Unseen`) instead of the field, which nothing constrained there: "seen" is
-    /// a cell of this many L′ voxels a side that holds a training pixel's first hit (0: the
-    /// field everywhere, the reference). Applied by the caller that builds the materials.
+    /// a cell of about this many L′ voxels a side (⌈res / c⌉ cells across the scene box) that
+    /// holds a training pixel's first hit (0: the field everywhere, the reference). Applied by
+    /// the caller that builds the materials; the oracle ignores it.
     #[serde(default)]
     pub unseen_cell: usize,
     /// The filter on the result (the reference denoises all 13 images).

@@ -27,7 +27,8 @@ pub struct Unseen<'a> {
 impl<'a> Unseen<'a> {
     /// `materials[i]` of the known point `points[i]` on triangle `tris[i]`, averaged per part
     /// (`part_keys`, per triangle); `cells` per axis over `scene_box`. Triangles flagged in
-    /// `forward` (e.g. emitters, which are black) always read `inner`.
+    /// `forward` (e.g. emitters, which are black) always read `inner` and add nothing to a
+    /// mean; their points still mark their cells seen.
     pub fn build(
         scene_box: SceneBox,
         cells: usize,
@@ -52,6 +53,9 @@ impl<'a> Unseen<'a> {
             let Some(&key) = part_keys.get(t as usize) else {
                 continue;
             };
+            if forward.get(t as usize).copied().unwrap_or(false) {
+                continue;
+            }
             let s = sums.entry(key).or_insert(([0.0; 5], 0));
             let v = [
                 m.base_color.x,

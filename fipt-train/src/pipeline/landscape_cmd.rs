@@ -59,10 +59,18 @@ pub fn landscapes(
     };
     let ctx = RunContext::load(scene, out, cfg, &opts)?;
     let ds = &ctx.ds;
-    if let Some(parts) = &swap {
-        // Unknown part names fail before anything is traced.
-        refine::part_triangles(scene, ds, parts)?;
-    }
+    // The model and the part names of `swap`, checked before anything is traced.
+    let swap = match swap {
+        Some(mut parts) => {
+            let mut seen = std::collections::HashSet::new();
+            parts.retain(|p| seen.insert(p.clone()));
+            refine::part_triangles(scene, ds, &parts)?;
+            let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
+            let m = crate::scene_model::SceneModel::load(&out.join("model"), &device)?;
+            Some((m, parts))
+        }
+        None => None,
+    };
     let maps = if fitted {
         Some(score::read_train_maps(ds, out)?)
     } else {
@@ -133,10 +141,7 @@ pub fn landscapes(
             with_patch(landscape(ds, &baked.hits, &s, prior(0), maps, &left), &s),
         ));
     }
-    if let Some(parts) = swap {
-        let dir = out.join("model");
-        let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
-        let m = crate::scene_model::SceneModel::load(&dir, &device)?;
+    if let Some((m, parts)) = swap {
         for (name, s) in refine::swapped(&ctx, &baked, &m.model, &m.emitters, &parts)? {
             tables.push((
                 name,
