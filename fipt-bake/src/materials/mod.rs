@@ -47,3 +47,54 @@ pub trait MaterialSource: Sync {
     /// (cleared first).
     fn query(&self, points: &[Vec3], tris: &[u32], out: &mut Vec<SurfaceMaterial>);
 }
+
+/// `src`'s materials at the entries `idx` of a query (`points`, `tris`), in the order of `idx`,
+/// in one batched query; none asked when `idx` is empty. The sources that answer part of a
+/// query themselves forward the rest through it.
+fn query_at(
+    src: &dyn MaterialSource,
+    points: &[Vec3],
+    tris: &[u32],
+    idx: &[usize],
+) -> Vec<SurfaceMaterial> {
+    let mut out = Vec::with_capacity(idx.len());
+    if !idx.is_empty() {
+        let pts: Vec<Vec3> = idx.iter().map(|&i| points[i]).collect();
+        let ts: Vec<u32> = idx.iter().map(|&i| tris[i]).collect();
+        src.query(&pts, &ts, &mut out);
+    }
+    out
+}
+
+/// A running sum of materials (in f64) for their mean.
+#[derive(Clone, Copy, Default)]
+struct MaterialSum {
+    sum: [f64; 5],
+    n: u32,
+}
+
+impl MaterialSum {
+    fn add(&mut self, m: &SurfaceMaterial) {
+        let v = [
+            m.base_color.x,
+            m.base_color.y,
+            m.base_color.z,
+            m.roughness,
+            m.metallic,
+        ];
+        for (a, x) in self.sum.iter_mut().zip(v) {
+            *a += x as f64;
+        }
+        self.n += 1;
+    }
+
+    /// The mean of what was added (at least one material).
+    fn mean(&self) -> SurfaceMaterial {
+        let f = |c: usize| (self.sum[c] / self.n as f64) as f32;
+        SurfaceMaterial {
+            base_color: Vec3::new(f(0), f(1), f(2)),
+            roughness: f(3),
+            metallic: f(4),
+        }
+    }
+}

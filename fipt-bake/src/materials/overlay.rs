@@ -4,7 +4,7 @@
 //!
 //! Owns: the split of a query between the two. Must not touch: what either material is.
 
-use super::{MaterialSource, SurfaceMaterial};
+use super::{MaterialSource, SurfaceMaterial, query_at};
 use glam::Vec3;
 
 pub struct Overlay<'a> {
@@ -23,13 +23,7 @@ impl MaterialSource for Overlay<'_> {
             return self.inner.query(points, tris, out);
         }
         let inner_idx: Vec<usize> = (0..tris.len()).filter(|&i| tris[i] < self.first).collect();
-        let pts: Vec<Vec3> = inner_idx.iter().map(|&i| points[i]).collect();
-        let ts: Vec<u32> = inner_idx.iter().map(|&i| tris[i]).collect();
-        let mut inner = Vec::new();
-        if !pts.is_empty() {
-            self.inner.query(&pts, &ts, &mut inner);
-        }
-        let mut next = inner.into_iter();
+        let mut next = query_at(self.inner, points, tris, &inner_idx).into_iter();
         out.extend(tris.iter().map(|&t| {
             if t < self.first {
                 next.next().unwrap_or(SurfaceMaterial::BLACK)

@@ -4,7 +4,7 @@
 //!
 //! Owns: the split of a query between the two. Must not touch: what either material is.
 
-use super::{MaterialSource, SurfaceMaterial};
+use super::{MaterialSource, SurfaceMaterial, query_at};
 use glam::Vec3;
 
 pub struct Split<'a> {
@@ -28,13 +28,7 @@ impl MaterialSource for Split<'_> {
             let idx: Vec<usize> = (0..tris.len())
                 .filter(|&i| self.second(tris[i]) == second)
                 .collect();
-            let mut got = Vec::new();
-            if !idx.is_empty() {
-                let pts: Vec<Vec3> = idx.iter().map(|&i| points[i]).collect();
-                let ts: Vec<u32> = idx.iter().map(|&i| tris[i]).collect();
-                src.query(&pts, &ts, &mut got);
-            }
-            got.into_iter()
+            query_at(src, points, tris, &idx).into_iter()
         };
         let (mut a, mut b) = (ask(self.first, false), ask(self.second, true));
         out.extend(tris.iter().map(|&t| {

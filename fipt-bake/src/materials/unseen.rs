@@ -8,7 +8,7 @@
 //! Owns: the seen cells, the part means and the split of a query. Must not touch: what the
 //! wrapped source computes.
 
-use super::{MaterialSource, SurfaceMaterial};
+use super::{MaterialSource, MaterialSum, SurfaceMaterial, query_at};
 use fipt_core::scene::SceneBox;
 use glam::Vec3;
 use std::collections::HashMap;
@@ -19,9 +19,8 @@ pub struct Unseen<'a> {
     /// Cells per axis of the seen grid.
     cells: usize,
     seen: Vec<bool>,
-    /// Per triangle, the index of its part's mean (`u32::MAX`: forwarded).
-    mean_of: Vec<u32>,
-    means: Vec<SurfaceMaterial>,
+    /// Per triangle, its part's mean (None: forwarded).
+    mean_of: Vec<Option<SurfaceMaterial>>,
 }
 
 impl<'a> Unseen<'a> {
@@ -43,50 +42,27 @@ impl<'a> Unseen<'a> {
             scene_box,
             cells,
             seen: vec![false; cells * cells * cells],
-            mean_of: vec![u32::MAX; part_keys.len()],
-            means: Vec::new(),
+            mean_of: Vec::new(),
         };
-        let mut sums: HashMap<u64, ([f64; 5], u32)> = HashMap::new();
+        let forwarded = |t: usize| forward.get(t).copied().unwrap_or(false);
+        let mut sums: HashMap<u64, MaterialSum> = HashMap::new();
         for ((&p, &t), m) in points.iter().zip(tris).zip(materials) {
             let c = u.cell(p);
             u.seen[c] = true;
-            let Some(&key) = part_keys.get(t as usize) else {
-                continue;
-            };
-            if forward.get(t as usize).copied().unwrap_or(false) {
-                continue;
-            }
-            let s = sums.entry(key).or_insert(([0.0; 5], 0));
-            let v = [
-                m.base_color.x,
-                m.base_color.y,
-                m.base_color.z,
-                m.roughness,
-                m.metallic,
-            ];
-            for (a, x) in s.0.iter_mut().zip(v) {
-                *a += x as f64;
-            }
-            s.1 += 1;
-        }
-        let mut index: HashMap<u64, u32> = HashMap::new();
-        let mut keys: Vec<&u64> = sums.keys().collect();
-        keys.sort_unstable();
-        for key in keys {
-            let (s, n) = sums[key];
-            let f = |c: usize| (s[c] / n as f64) as f32;
-            index.insert(*key, u.means.len() as u32);
-            u.means.push(SurfaceMaterial {
-                base_color: Vec3::new(f(0), f(1), f(2)),
-                roughness: f(3),
-                metallic: f(4),
-            });
-        }
-        for (t, key) in part_keys.iter().enumerate() {
-            if !forward.get(t).copied().unwrap_or(false) {
-                u.mean_of[t] = index.get(key).copied().unwrap_or(u32::MAX);
+            if let Some(&key) = part_keys.get(t as usize)
+                && !forwarded(t as usize)
+            {
+                sums.entry(key).or_default().add(m);
             }
         }
+        u.mean_of = part_keys
+            .iter()
+            .enumerate()
+            .map(|(t, key)| {
+                let sum = sums.get(key).filter(|_| !forwarded(t));
+                sum.map(MaterialSum::mean)
+            })
+            .collect();
         u
     }
 
@@ -98,8 +74,8 @@ impl<'a> Unseen<'a> {
 
     /// The part mean a query at `p` on triangle `t` reads, if it reads one.
     fn mean_at(&self, p: Vec3, t: u32) -> Option<SurfaceMaterial> {
-        let k = *self.mean_of.get(t as usize)?;
-        (k != u32::MAX && !self.seen[self.cell(p)]).then(|| self.means[k as usize])
+        let m = (*self.mean_of.get(t as usize)?)?;
+        (!self.seen[self.cell(p)]).then_some(m)
     }
 }
 
@@ -112,13 +88,7 @@ impl MaterialSource for Unseen<'_> {
             .map(|(&p, &t)| self.mean_at(p, t))
             .collect();
         let fwd: Vec<usize> = (0..own.len()).filter(|&i| own[i].is_none()).collect();
-        let mut got = Vec::new();
-        if !fwd.is_empty() {
-            let pts: Vec<Vec3> = fwd.iter().map(|&i| points[i]).collect();
-            let ts: Vec<u32> = fwd.iter().map(|&i| tris[i]).collect();
-            self.inner.query(&pts, &ts, &mut got);
-        }
-        let mut next = got.into_iter();
+        let mut next = query_at(self.inner, points, tris, &fwd).into_iter();
         out.extend(
             own.into_iter()
                 .map(|m| m.or_else(|| next.next()).unwrap_or(SurfaceMaterial::BLACK)),

@@ -6,7 +6,7 @@
 //! Owns: the per-voxel means and the split between cached and forwarded queries. Must not
 //! touch: what the wrapped source computes.
 
-use super::{MaterialSource, SurfaceMaterial};
+use super::{MaterialSource, MaterialSum, SurfaceMaterial, query_at};
 use fipt_core::scene::SceneBox;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -128,39 +128,16 @@ impl<'a> VoxelMaterials<'a> {
             always_forward,
             near: false,
         };
-        let mut sums: Vec<([f64; 5], u32)> = Vec::new();
+        let mut sums: Vec<MaterialSum> = Vec::new();
         for (p, m) in points.iter().zip(materials) {
             let key = v.key(*p);
             let k = v.index.get_or_insert(key, sums.len() as u32) as usize;
             if k == sums.len() {
-                sums.push(([0.0; 5], 0));
+                sums.push(MaterialSum::default());
             }
-            let s = &mut sums[k];
-            for (c, x) in [
-                m.base_color.x,
-                m.base_color.y,
-                m.base_color.z,
-                m.roughness,
-                m.metallic,
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                s.0[c] += x as f64;
-            }
-            s.1 += 1;
+            sums[k].add(m);
         }
-        v.means = sums
-            .iter()
-            .map(|(s, n)| {
-                let f = |c: usize| (s[c] / *n as f64) as f32;
-                SurfaceMaterial {
-                    base_color: Vec3::new(f(0), f(1), f(2)),
-                    roughness: f(3),
-                    metallic: f(4),
-                }
-            })
-            .collect();
+        v.means = sums.iter().map(MaterialSum::mean).collect();
         v
     }
 
@@ -281,9 +258,7 @@ impl MaterialSource for VoxelMaterials<'_> {
         if missing.is_empty() {
             return;
         }
-        let (mp, mt): (Vec<Vec3>, Vec<u32>) = missing.iter().map(|&i| (points[i], tris[i])).unzip();
-        let mut fwd = Vec::with_capacity(missing.len());
-        self.fallback.query(&mp, &mt, &mut fwd);
+        let fwd = query_at(self.fallback, points, tris, &missing);
         for (&i, m) in missing.iter().zip(fwd) {
             out[i] = m;
         }

@@ -64,7 +64,7 @@ pub fn landscapes(
         Some(mut parts) => {
             let mut seen = std::collections::HashSet::new();
             parts.retain(|p| seen.insert(p.clone()));
-            refine::part_triangles(scene, ds, &parts)?;
+            let parts = refine::part_triangles(scene, ds, &parts)?;
             let device = cfg.backend.device().map_err(anyhow::Error::msg)?;
             let m = crate::scene_model::SceneModel::load(&out.join("model"), &device)?;
             Some((m, parts))

@@ -318,8 +318,9 @@ pub fn part_triangles(
 
 /// The shadings of every training view with part of the oracle swapped for a fitted model's
 /// (`fipt-train landscape --swap`): its material field (exact queries) with its emitters, with
-/// the true emitters, and the true materials with its emitters; then, per name in `parts`,
-/// the true scene with that part's material the model's. As (name, shadings). All go through
+/// the true emitters, and the true materials with its emitters; then, per part of `parts`
+/// (name and triangles, `part_triangles`), the true scene with that part's material the
+/// model's. As (name, shadings). All go through
 /// the oracle's paths and radiance cache, so that against the oracle's shadings each differs
 /// by what it swaps alone.
 pub fn swapped(
@@ -327,7 +328,7 @@ pub fn swapped(
     baked: &Baked,
     model: &FiptModel,
     emitters: &[Emitter],
-    parts: &[String],
+    parts: &[(String, Vec<bool>)],
 ) -> anyhow::Result<Vec<(String, Vec<Vec<f32>>)>> {
     let ds = &ctx.ds;
     let meta_path = ctx.scene.join("scene_meta.json");
@@ -357,6 +358,7 @@ pub fn swapped(
         .filter(|(_, e)| e.iter().any(|&c| c > 0.0))
         .map(|(t, _)| t as u32)
         .collect();
+    let model_real = learned(&real_tris);
     let mut out = vec![
         (
             "model".to_string(),
@@ -364,19 +366,18 @@ pub fn swapped(
         ),
         (
             "model, true emitters".to_string(),
-            refine_with(&job, &learned(&real_tris), &real)?.0,
+            refine_with(&job, &model_real, &real)?.0,
         ),
         (
             "true materials, model emitters".to_string(),
             refine_with(&job, &truth, &fitted)?.0,
         ),
     ];
-    let model_materials = learned(&real_tris);
-    for (name, from_second) in part_triangles(ctx.scene, ds, parts)? {
+    for (name, from_second) in parts {
         let split = fipt_bake::materials::Split {
             first: &truth,
-            second: &model_materials,
-            from_second,
+            second: &model_real,
+            from_second: from_second.clone(),
         };
         out.push((
             format!("true scene, the model's {name}"),
