@@ -152,6 +152,7 @@ fn swap_tables(scene: &Path, run: &Path) {
         "model",
         "model, true emitters",
         "true materials, model emitters",
+        "true materials, voxel cache",
     ] {
         assert_ne!(data(t), data("oracle"), "{t}");
     }

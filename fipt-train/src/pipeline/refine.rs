@@ -318,7 +318,8 @@ pub fn part_triangles(
 
 /// The shadings of every training view with part of the oracle swapped for a fitted model's
 /// (`fipt-train landscape --swap`): its material field (exact queries) with its emitters, with
-/// the true emitters, and the true materials with its emitters; then, per part of `parts`
+/// the true emitters, and the true materials with its emitters; the true scene through the
+/// refinement's voxel cache of materials (`true_voxels`); then, per part of `parts`
 /// (name and triangles, `part_triangles`), the true scene with that part's material the
 /// model's. As (name, shadings). All go through
 /// the oracle's paths and radiance cache, so that against the oracle's shadings each differs
@@ -372,6 +373,15 @@ pub fn swapped(
             "true materials, model emitters".to_string(),
             refine_with(&job, &truth, &fitted)?.0,
         ),
+        (
+            "true materials, voxel cache".to_string(),
+            refine_with(
+                &job,
+                &true_voxels(job.light_field, baked, &truth, ntri, &real_tris),
+                &real,
+            )?
+            .0,
+        ),
     ];
     for (name, from_second) in parts {
         let split = fipt_bake::materials::Split {
@@ -385,6 +395,39 @@ pub fn swapped(
         ));
     }
     Ok(out)
+}
+
+/// The true materials as the refinement reads a learned field: their mean per voxel of
+/// `light_field`'s grid over the training pixels' first hits, whatever part each hit is on;
+/// the `lights` triangles (emitters) and the voxels no hit is in go to `truth`.
+fn true_voxels<'a>(
+    light_field: &LightField,
+    baked: &Baked,
+    truth: &'a fipt_bake::materials::TrueMaterials,
+    ntri: usize,
+    lights: &[u32],
+) -> VoxelMaterials<'a> {
+    let mut lit = vec![false; ntri];
+    for &t in lights {
+        lit[t as usize] = true;
+    }
+    let (points, tris): (Vec<Vec3>, Vec<u32>) = baked
+        .hits
+        .iter()
+        .flat_map(|h| h.position.iter().zip(&h.tri))
+        .filter(|&(_, &t)| t >= 0 && !lit[t as usize])
+        .map(|(&p, &t)| (p, t as u32))
+        .unzip();
+    let mut mats = Vec::with_capacity(points.len());
+    truth.query(&points, &tris, &mut mats);
+    VoxelMaterials::build(
+        light_field.scene_box,
+        light_field.res,
+        &points,
+        &mats,
+        truth,
+        lit,
+    )
 }
 
 /// The specular radiance k_s·L_s0(σ) + L_s1(σ) of the true materials (the train views' base
