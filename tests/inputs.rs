@@ -36,6 +36,8 @@ fn example(kind: Kind) -> Value {
             v["refine"]["lambda_d_warmup"] = json!(0.5);
             v["refine"]["lambda_m"] = json!(1e-4);
             v["train"]["grid"]["max_resolution"] = json!(2048.0);
+            v["refine"]["paths"]["sharp"] =
+                json!({"below": 0.4, "specular": [128, 128, 32, 32, 32, 32]});
             v
         }
         Kind::SceneMeta => {

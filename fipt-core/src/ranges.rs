@@ -273,6 +273,8 @@ pub const FIELDS: &[Field] = &[
     f(C, "refine.paths.footprint", int(0.0, 8.0), "n of an n×n ray grid per pixel; 0: the centre"),
     f(C, "refine.paths.small_parts", int(0.0, 1e8), "pixels of a part over all views; 0: off"),
     f(C, "refine.paths.unseen_cell", int(0.0, 1024.0), "L′ voxels a side; 0: off"),
+    f(C, "refine.paths.sharp.below", UNIT, "σ (the key null: off)"),
+    f(C, "refine.paths.sharp.specular[]", SAMPLES, "paths per pixel"),
     f(C, "refine.paths.filter.radius", int(0.0, 32.0), "pixels; 0: no filter"),
     f(C, "refine.paths.filter.sigma_px", FILTER_PX, "pixels"),
     f(C, "refine.paths.filter.normal_power", closed(0.0, 1e4), "exponent"),

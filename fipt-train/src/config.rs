@@ -1037,6 +1037,7 @@ fn validate_refine(refine: &RefineSection, train_lambda_d: f32) -> Result<()> {
         "refine.paths.footprint",
         "must be in [0, 8]",
     )?;
+
     if let Some(l) = refine.lambda_d {
         check(l >= 0.0 && l.is_finite(), "refine.lambda_d", "must be >= 0")?;
     }

@@ -84,6 +84,12 @@ pub struct RefineConfig {
     /// the caller that builds the materials; the oracle ignores it.
     #[serde(default)]
     pub unseen_cell: usize,
+    /// More paths on the sharp levels for the pixels whose last fit is sharp there (None: the
+    /// same paths for every pixel, the reference). The unfiltered sharp levels' noise decides
+    /// a glossy part's σ, and only the pixels fitted glossy read those levels much. Applied by
+    /// the caller (`refine_view`'s `sharp`).
+    #[serde(default)]
+    pub sharp: Option<SharpSamples>,
     /// The filter on the result (the reference denoises all 13 images).
     pub filter: crate::filter::FilterConfig,
     /// Paths per wavefront (memory bound only).
@@ -110,6 +116,7 @@ impl Default for RefineConfig {
             footprint: 0,
             small_parts: 0,
             unseen_cell: 0,
+            sharp: None,
             filter: crate::filter::FilterConfig {
                 specular_levels: (0..6).collect(),
                 ..Default::default()
@@ -118,6 +125,16 @@ impl Default for RefineConfig {
             seed: 0,
         }
     }
+}
+
+/// The GGX paths per roughness level of a sharp pixel (`RefineConfig::sharp`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SharpSamples {
+    /// A pixel whose last fit has σ below this at its first hit is sharp.
+    pub below: f32,
+    /// GGX paths per roughness level for a sharp pixel, in place of `samples.specular`.
+    pub specular: [usize; fipt_core::brdf::ROUGHNESS_LEVELS],
 }
 
 /// The most estimates a pixel of a small part gets (`RefineConfig::small_parts`).
@@ -270,14 +287,24 @@ fn light_sampled(
     rays
 }
 
+/// How `refine_view` spends its paths per pixel of a view (None: as on every other pixel).
+#[derive(Clone, Copy, Default)]
+pub struct PixelPaths<'a> {
+    /// Estimates averaged, one count per pixel (`RefineConfig::small_parts`; None: 1 each).
+    pub passes: Option<&'a [u32]>,
+    /// The pixels that take `RefineConfig::sharp`'s paths per level (ignored while that is
+    /// None).
+    pub sharp: Option<&'a [bool]>,
+}
+
 /// Refines the shadings of one view (`ShadingLayout::DIM` values per pixel, zeros where the
 /// pixel-centre ray missed), filtered; each pixel's samples start from the points of its
 /// footprint `fp`, each estimator's shared equally (`point_of_sample`;
 /// `ViewFootprint::centres` for the reference). `view_key` separates views in the random
-/// streams and `focal` is the view's focal length in pixels (for the filter). `passes`, one
-/// count per pixel (None: 1 each), repeats a pixel's estimators with fresh random streams and
-/// averages them: that many times the samples, for the pixels of small parts
-/// (`RefineConfig::small_parts`).
+/// streams and `focal` is the view's focal length in pixels (for the filter). `per_pixel`'s
+/// `passes` repeats a pixel's estimators with fresh random streams and averages them: that
+/// many times the samples, for the pixels of small parts (`RefineConfig::small_parts`); its
+/// `sharp` flags give a pixel `RefineConfig::sharp`'s paths per level.
 pub fn refine_view(
     scene: &PathScene,
     hits: &ViewHits,
@@ -285,17 +312,24 @@ pub fn refine_view(
     focal: f32,
     cfg: &RefineConfig,
     view_key: u64,
-    passes: Option<&[u32]>,
+    per_pixel: PixelPaths,
 ) -> (Vec<f32>, PathStats) {
+    let PixelPaths { passes, sharp } = per_pixel;
     let dim = ShadingLayout::DIM;
     let mut out = vec![0f32; hits.num_pixels() * dim];
     let mut stats = PathStats::default();
     let count = |p: usize| passes.map_or(1, |n| n[p].max(1));
     let most = (0..hits.num_pixels()).map(count).max().unwrap_or(1);
+    // A sharp pixel's estimators take `cfg.sharp`'s paths per level (`RefineConfig::sharp`).
+    let sharp_samples = cfg.sharp.as_ref().zip(sharp).map(|(s, _)| BakeSamples {
+        specular: s.specular,
+        ..cfg.samples
+    });
+    let is_sharp = |p: usize| sharp_samples.is_some() && sharp.is_some_and(|f| f[p]);
     for pass in 0..most {
-        let pixels: Vec<usize> = (0..hits.num_pixels())
+        let (plain, sharp_px): (Vec<usize>, Vec<usize>) = (0..hits.num_pixels())
             .filter(|&p| hits.tri[p] >= 0 && count(p) > pass)
-            .collect();
+            .partition(|&p| !is_sharp(p));
         // Pass 0 draws the streams of a run without passes.
         let seed = cfg
             .seed
@@ -304,7 +338,11 @@ pub fn refine_view(
             seed,
             ..cfg.clone()
         };
-        accumulate(scene, fp, &pcfg, view_key, &pixels, &mut out, &mut stats);
+        accumulate(scene, fp, &pcfg, view_key, &plain, &mut out, &mut stats);
+        if let Some(samples) = sharp_samples.clone().filter(|_| !sharp_px.is_empty()) {
+            let scfg = RefineConfig { samples, ..pcfg };
+            accumulate(scene, fp, &scfg, view_key, &sharp_px, &mut out, &mut stats);
+        }
     }
     if most > 1 {
         for (p, px) in out.chunks_mut(dim).enumerate() {
@@ -471,6 +509,30 @@ mod tests {
         spp: usize,
         passes: u32,
     ) -> Vec<Vec<f32>> {
+        let cfg = RefineConfig {
+            samples: BakeSamples {
+                diffuse: spp,
+                specular: [spp; 6],
+            },
+            max_depth,
+            light_samples,
+            ..Default::default()
+        };
+        floor_view(floor, 1, sigma, cache_value, &cfg, passes, None)
+    }
+
+    /// 12 runs of `refine_view` (seeds 0–11, `cfg` otherwise, unfiltered) over a view of
+    /// `width` pixels that all see the floor's footprint `floor` in the lit box (walls of
+    /// roughness `sigma` and L′ `cache_value`): per run, every pixel's shading vector in turn.
+    fn floor_view(
+        floor: &[Vec3],
+        width: usize,
+        sigma: f32,
+        cache_value: f32,
+        cfg: &RefineConfig,
+        passes: u32,
+        sharp: Option<&[bool]>,
+    ) -> Vec<Vec<f32>> {
         let (accel, lf) = lit_box(&|_| cache_value);
         // The same box as `lit_box`'s.
         let mut pm = fipt_core::scene::procedural::PartMesh::default();
@@ -495,38 +557,31 @@ mod tests {
         };
         let wo = Vec3::new(0.6, 0.8, 0.0);
         let hits = ViewHits {
-            width: 1,
+            width,
             height: 1,
             origin: floor[0] + wo,
-            direction: vec![-wo],
-            t: vec![1.0],
-            tri: vec![0],
-            position: vec![floor[0]],
-            normal: vec![Vec3::Y],
+            direction: vec![-wo; width],
+            t: vec![1.0; width],
+            tri: vec![0; width],
+            position: vec![floor[0]; width],
+            normal: vec![Vec3::Y; width],
         };
-        let fp = ViewFootprint::from_lists(std::iter::once(
-            floor
-                .iter()
-                .map(|&x| SurfacePoint { x, n: Vec3::Y, wo })
-                .collect(),
-        ));
+        let points: Vec<SurfacePoint> = floor
+            .iter()
+            .map(|&x| SurfacePoint { x, n: Vec3::Y, wo })
+            .collect();
+        let fp = ViewFootprint::from_lists((0..width).map(|_| points.clone()));
         (0..12)
             .map(|k| {
                 let cfg = RefineConfig {
-                    samples: BakeSamples {
-                        diffuse: spp,
-                        specular: [spp; 6],
-                    },
-                    max_depth,
-                    light_samples,
                     filter: crate::filter::FilterConfig {
                         radius: 0,
                         ..Default::default()
                     },
                     seed: k,
-                    ..Default::default()
+                    ..cfg.clone()
                 };
-                let n = [passes];
+                let n = vec![passes; width];
                 refine_view(
                     &scene,
                     &hits,
@@ -534,7 +589,10 @@ mod tests {
                     100.0,
                     &cfg,
                     0,
-                    (passes > 1).then_some(&n[..]),
+                    PixelPaths {
+                        passes: (passes > 1).then_some(&n[..]),
+                        sharp,
+                    },
                 )
                 .0
             })
@@ -674,5 +732,53 @@ mod tests {
             ],
             [1, 2, 4, SMALL_PART_PASSES]
         );
+    }
+
+    /// A pixel flagged sharp (`RefineConfig::sharp`) is estimated exactly as with the sharp
+    /// counts as every pixel's samples, and the unflagged pixel beside it exactly as without
+    /// the key; the flags do nothing while the key is None.
+    #[test]
+    fn sharp_pixels_take_the_sharp_paths() {
+        let base = RefineConfig {
+            samples: BakeSamples {
+                diffuse: 8,
+                specular: [8; 6],
+            },
+            max_depth: 2,
+            light_samples: 4,
+            ..Default::default()
+        };
+        let specular = [64, 64, 8, 8, 8, 8];
+        let keyed = RefineConfig {
+            sharp: Some(SharpSamples {
+                below: 0.5,
+                specular,
+            }),
+            ..base.clone()
+        };
+        let more = RefineConfig {
+            samples: BakeSamples {
+                specular,
+                ..base.samples
+            },
+            ..base.clone()
+        };
+        let flags = [true, false];
+        let view = |cfg: &RefineConfig, sharp: Option<&[bool]>| {
+            floor_view(&[FLOOR_X], 2, 0.3, 0.5, cfg, 1, sharp)
+        };
+        let sharp = view(&keyed, Some(&flags));
+        let (plain, all_more) = (view(&base, None), view(&more, None));
+        assert_eq!(view(&base, Some(&flags)), plain);
+        let dim = ShadingLayout::DIM;
+        for k in 0..sharp.len() {
+            assert_eq!(
+                sharp[k][..dim],
+                all_more[k][..dim],
+                "run {k}: the sharp pixel"
+            );
+            assert_eq!(sharp[k][dim..], plain[k][dim..], "run {k}: the plain pixel");
+            assert_ne!(sharp[k][..dim], plain[k][..dim], "run {k}");
+        }
     }
 }

@@ -17,7 +17,7 @@ use fipt_bake::accel::footprint::ViewFootprint;
 use fipt_bake::accel::raycast::ViewHits;
 use fipt_bake::emitters::{Emitter, EmitterSet, EmitterSides, LightSelection};
 use fipt_bake::integrators::path::{PathScene, PathStats, RadianceCache};
-use fipt_bake::integrators::refine::{RefineConfig, refine_view};
+use fipt_bake::integrators::refine::{PixelPaths, RefineConfig, refine_view};
 use fipt_bake::lightfield::LightField;
 use fipt_bake::materials::{MaterialSource, SurfaceMaterial, Unseen, VoxelMaterials};
 use fipt_core::io::Fnv64;
@@ -99,23 +99,24 @@ pub fn refine(
     // The field at the training hits, averaged per voxel of L′'s grid; emitter triangles
     // always go to the learned source (black).
     let lf = job.light_field;
-    let known = (job.material_cache || job.cfg.unseen_cell > 0).then(|| {
-        let mv = model.material(&store.pixels.x_unit, &store.pixels.part);
-        let mats: Vec<SurfaceMaterial> = (0..store.len())
-            .map(|i| SurfaceMaterial {
-                base_color: Vec3::from_slice(&mv.a[3 * i..3 * i + 3]),
-                roughness: mv.sigma[i],
-                metallic: mv.metallic[i],
-            })
-            .collect();
-        let points: Vec<Vec3> = store
-            .pixels
-            .x_world
-            .iter()
-            .map(|p| Vec3::from(*p))
-            .collect();
-        (points, mats)
-    });
+    let known =
+        (job.material_cache || job.cfg.unseen_cell > 0 || job.cfg.sharp.is_some()).then(|| {
+            let mv = model.material(&store.pixels.x_unit, &store.pixels.part);
+            let mats: Vec<SurfaceMaterial> = (0..store.len())
+                .map(|i| SurfaceMaterial {
+                    base_color: Vec3::from_slice(&mv.a[3 * i..3 * i + 3]),
+                    roughness: mv.sigma[i],
+                    metallic: mv.metallic[i],
+                })
+                .collect();
+            let points: Vec<Vec3> = store
+                .pixels
+                .x_world
+                .iter()
+                .map(|p| Vec3::from(*p))
+                .collect();
+            (points, mats)
+        });
     // Where no training pixel saw the surface, the part's mean (`refine.paths.unseen_cell`).
     let unseen = known
         .as_ref()
@@ -149,8 +150,22 @@ pub fn refine(
         Some(v) => v,
         None => field,
     };
+    // The pixels the field puts below `refine.paths.sharp.below` take its paths per level.
+    let sharp = job
+        .cfg
+        .sharp
+        .as_ref()
+        .zip(known.as_ref())
+        .map(|(s, (_, mats))| {
+            let train = &job.ds.train;
+            let mut flags = vec![vec![false; train.width * train.height]; train.views.len()];
+            for (&(v, p), m) in store.origin.iter().zip(mats) {
+                flags[v as usize][p as usize] = m.roughness < s.below;
+            }
+            flags
+        });
     let lights = learned_lights(mesh, emitters, job.cfg);
-    let (shadings, stats) = refine_with(job, source, &lights)?;
+    let (shadings, stats) = refine_with(job, source, &lights, sharp.as_deref())?;
     Ok(Refined {
         shadings,
         stats,
@@ -180,11 +195,13 @@ fn learned_lights(
 }
 
 /// Path-traces the shadings of the job's training views with any material source and
-/// emitters (the learned model's in `refine`, the ground truth's for the oracle).
+/// emitters (the learned model's in `refine`, the ground truth's for the oracle); `sharp`,
+/// per view and pixel, flags the pixels that take `refine.paths.sharp`'s paths.
 pub fn refine_with(
     job: &RefineJob,
     materials: &dyn MaterialSource,
     lights: &EmitterSet,
+    sharp: Option<&[Vec<bool>]>,
 ) -> anyhow::Result<(Vec<Vec<f32>>, PathStats)> {
     let (cfg, baked) = (job.cfg, job.baked);
     let scene = PathScene {
@@ -219,7 +236,11 @@ pub fn refine_with(
         let (v, h) = (&job.ds.train.views[k], &baked.hits[k]);
         let fp = ViewFootprint::cast(job.accel, &v.camera, h, parts, cfg.footprint);
         let n = passes.as_ref().map(|p| p[k].as_slice());
-        let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64, n);
+        let per_pixel = PixelPaths {
+            passes: n,
+            sharp: sharp.map(|f| f[k].as_slice()),
+        };
+        let (s, st) = refine_view(&scene, h, &fp, v.camera.fx as f32, cfg, k as u64, per_pixel);
         stats.add(&st);
         pb.inc(1);
         shadings.push(s);
@@ -268,7 +289,7 @@ pub fn oracle(scene_dir: &std::path::Path, job: &RefineJob) -> anyhow::Result<Ve
     };
     let ntri = ds.mesh.num_triangles();
     let materials = fipt_bake::materials::TrueMaterials::load(scene_dir, &meta_path, meta, ntri)?;
-    Ok(refine_with(job, &materials, &true_lights(ds, meta))?.0)
+    Ok(refine_with(job, &materials, &true_lights(ds, meta), None)?.0)
 }
 
 /// The scene's true emitters, one-sided as Mitsuba rendered them, uniform selection.
@@ -363,15 +384,15 @@ pub fn swapped(
     let mut out = vec![
         (
             "model".to_string(),
-            refine_with(&job, &learned(&fitted_tris), &fitted)?.0,
+            refine_with(&job, &learned(&fitted_tris), &fitted, None)?.0,
         ),
         (
             "model, true emitters".to_string(),
-            refine_with(&job, &model_real, &real)?.0,
+            refine_with(&job, &model_real, &real, None)?.0,
         ),
         (
             "true materials, model emitters".to_string(),
-            refine_with(&job, &truth, &fitted)?.0,
+            refine_with(&job, &truth, &fitted, None)?.0,
         ),
         (
             "true materials, voxel cache".to_string(),
@@ -379,6 +400,7 @@ pub fn swapped(
                 &job,
                 &true_voxels(job.light_field, baked, &truth, ntri, &real_tris),
                 &real,
+                None,
             )?
             .0,
         ),
@@ -391,7 +413,7 @@ pub fn swapped(
         };
         out.push((
             format!("true scene, the model's {name}"),
-            refine_with(&job, &split, &real)?.0,
+            refine_with(&job, &split, &real, None)?.0,
         ));
     }
     Ok(out)
