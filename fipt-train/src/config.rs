@@ -117,6 +117,13 @@ impl Default for RefineSection {
                 // The pixels of parts seen in fewer than 16384 pixels path-traced again, up to
                 // 16 times (the reference traces each once); `docs/departures/small-parts.md`.
                 small_parts: 16384,
+                // 128 paths on the two sharp levels for the pixels fitted below level 2's σ
+                // (the reference gives every pixel 64 a level);
+                // `docs/departures/light-samples.md`.
+                sharp: Some(fipt_bake::integrators::refine::SharpSamples {
+                    below: 0.412,
+                    specular: [128, 128, 32, 32, 32, 32],
+                }),
                 ..RefineConfig::default()
             },
         }
