@@ -651,7 +651,7 @@ impl Default for HopConfig {
             hold_metals: 0.1,
             patch_majority: Some(0.0),
             patch_metals: false,
-            guard: false,
+            guard: true,
         }
     }
 }
