@@ -628,6 +628,10 @@ pub struct HopConfig {
     /// again from the same start with that segment pulled where it was, at `pull` (false: the
     /// hop is judged on its candidates alone).
     pub guard: bool,
+    /// A metal hypothesis gives way to a carried material that counts for the same segment
+    /// (false: the larger relative gain wins). The metal's gain is against one colour per
+    /// segment, the carried material's against the fit, so the two gains are not comparable.
+    pub carried_first: bool,
 }
 
 impl Default for HopConfig {
@@ -652,6 +656,7 @@ impl Default for HopConfig {
             patch_majority: Some(0.0),
             patch_metals: false,
             guard: true,
+            carried_first: true,
         }
     }
 }

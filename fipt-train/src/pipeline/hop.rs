@@ -443,8 +443,9 @@ fn thresholds(cfg: &HopConfig, source: Hypothesis) -> (f32, f32) {
 /// baseline by at least `gain` of it and, for the sweep and the metal, lies far from the fit
 /// (σ at least `min_move` away, or m across 0.5; nearer minima are descent's to find). The
 /// carried material needs no distance: it is a whole material that a fit already reached, and
-/// a mirror's σ 0.1 against 0.25 is a lost part. Of those, the largest relative gain wins. A
-/// segment already at zero (e.g. all behind the emission mask) has nothing to gain.
+/// a mirror's σ 0.1 against 0.25 is a lost part. Of those, the largest relative gain wins;
+/// with `carried_first`, a metal hypothesis only where no carried material counts. A segment
+/// already at zero (e.g. all behind the emission mask) has nothing to gain.
 fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
     checks
         .iter()
@@ -511,6 +512,10 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
             && (source == Hypothesis::Carried || far(source, sigma, m))
             && gain(obj, base) >= thresholds(cfg, source).0 as f64
     });
+    // With `carried_first`, a carried material that counts outranks the metal hypothesis.
+    if cfg.carried_first && options.iter().any(|o| o.0 == Hypothesis::Carried) {
+        options.retain(|o| o.0 != Hypothesis::Metal);
+    }
     options.sort_by(|a, b| gain(b.3, b.4).total_cmp(&gain(a.3, a.4)));
     options
         .into_iter()
@@ -1272,7 +1277,8 @@ mod tests {
 
     /// The last round's material is scored under this round's shadings: with the same model it
     /// scores the model's own objective; a carried candidate wins over the sweep only with the
-    /// lower objective, and pulls m only when it lies across 0.5 from the fit.
+    /// lower objective, and pulls m only when it lies across 0.5 from the fit; where it counts,
+    /// it wins over the metal hypothesis (`carried_first`).
     #[test]
     fn carried_material_is_scored_and_chosen_by_its_objective() {
         let st = toy_store(300);
@@ -1313,6 +1319,27 @@ mod tests {
         // Not lower by `gain`: the sweep's target.
         let c = candidates(&cfg, &[row((0.2, 0.9, 0.97))]);
         assert_eq!(c[0].source, Hypothesis::Sweep);
+        // A metal hypothesis whose gain against its own baseline (one colour per segment, 0.8)
+        // is larger than the carried material's against the fit (0.5) gives way to it with
+        // `carried_first`, and wins without it.
+        let both = SegmentObjective {
+            metal: Some((0.3, 0.2, 1.0)),
+            ..row((0.06, 0.98, 0.5))
+        };
+        let c = candidates(&cfg, std::slice::from_ref(&both));
+        assert_eq!((c[0].source, c[0].target), (Hypothesis::Carried, 0.06));
+        let off = HopConfig {
+            carried_first: false,
+            ..HopConfig::default()
+        };
+        let c = candidates(&off, std::slice::from_ref(&both));
+        assert_eq!((c[0].source, c[0].target), (Hypothesis::Metal, 0.3));
+        // A carried material that does not count leaves the metal its win.
+        let weak = SegmentObjective {
+            carried: Some((0.06, 0.98, 0.97)),
+            ..both
+        };
+        assert_eq!(candidates(&cfg, &[weak])[0].source, Hypothesis::Metal);
     }
 
     /// The check holds `prior` × the fit's λ_d: with 0 each segment's objective is its data
