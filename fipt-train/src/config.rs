@@ -632,6 +632,15 @@ pub struct HopConfig {
     /// (false: the larger relative gain wins). The metal's gain is against one colour per
     /// segment, the carried material's against the fit, so the two gains are not comparable.
     pub carried_first: bool,
+    /// A metal hypothesis that counts and whose one colour per segment scores within `gain` of
+    /// the fit's objective (the fit's colour free at every point) is plain: where the first
+    /// hop, which its segment was part of with this or another hypothesis, is undone, the
+    /// segment hops again as that metal, alone, held at its target through the release, and is
+    /// kept where its one colour still scores within `gain` of the fit's (false: an undone
+    /// first hop is final but for the patch fallback). A dielectric whose colour varies over
+    /// the part explains a metal's highlights as well as one metal colour does; the metal needs
+    /// no such freedom.
+    pub plain_metal: bool,
 }
 
 impl Default for HopConfig {
@@ -657,6 +666,7 @@ impl Default for HopConfig {
             patch_metals: false,
             guard: true,
             carried_first: true,
+            plain_metal: true,
         }
     }
 }

@@ -494,10 +494,10 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
                     .map_or_else(|| format!("segment {}", c.segment), |p| p.name.clone());
                 let m = |v: f64| format!(", m {v:.2}");
                 format!(
-                    "<tr><td>{round}</td><td>{}</td><td>{}</td><td>{:?}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:+.0} %</td><td>{}</td></tr>",
+                    "<tr><td>{round}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:.2}{}</td><td>{:+.0} %</td><td>{}</td></tr>",
                     esc(&name),
                     c.pixels,
-                    c.source,
+                    if c.alone { format!("{:?}, alone", c.source) } else { format!("{:?}", c.source) },
                     c.sigma,
                     m(c.metallic),
                     c.target,
@@ -508,6 +508,8 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
                     {
                         let kept = if c.source == crate::pipeline::hop::Hypothesis::Patch {
                             hop.patch_accepted.unwrap_or(false)
+                        } else if c.alone {
+                            hop.plain_accepted.unwrap_or(false)
                         } else {
                             hop.accepted
                         };
@@ -520,7 +522,7 @@ fn hops(h: &mut String, run: &RunReport, ds: &Dataset) {
     if rows.is_empty() {
         return;
     }
-    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, at the last round's material, or at another σ with the colour solved per patch) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell. Patch candidates hop after the others, held at their targets, and are kept or undone on their own; with <code>train.hop.hold_metals</code>, candidates hopping as metals stay pulled through the release at that weight.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
+    h.push_str("<h2>Basin hops</h2><p>After a fit, segments whose own objective is clearly lower far from the fitted material (at another σ, as a metal, at the last round's material, or at another σ with the colour solved per patch) are pulled there and released (<code>train.hop</code>); the hop is kept only if their objective fell. Patch candidates hop after the others, held at their targets, and are kept or undone on their own; with <code>train.hop.hold_metals</code>, candidates hopping as metals stay pulled through the release at that weight. With <code>train.hop.plain_metal</code>, a metal whose one colour scores within the gain of the fit hops again alone where the first hop was undone (“alone”), held at its target and measured at one colour.</p><table><tr><th>round</th><th>segment</th><th>pixels</th><th>hypothesis</th><th>fitted</th><th>target</th><th>after</th><th>objective</th><th></th></tr>");
     for r in rows {
         h.push_str(&r);
     }

@@ -14,6 +14,9 @@
 //! `settle`, the anchor holds a dielectric of a refined round at its patch hypothesis (its
 //! sweep's nearby minimum, and m = 0) rather than where the prior left it. With `hold_metals`,
 //! a candidate that hops as a metal stays pulled to its target through the release phase.
+//! With `plain_metal`, a segment of an undone first hop whose metal hypothesis scores within
+//! `gain` of the fit with one colour per segment hops again as that metal, alone, measured at
+//! one colour per segment.
 //! With `patch_majority` z, a patch hypothesis counts only where the share of the segment's
 //! cubes that prefer it lies at most z standard errors below a half (`patches::preference`),
 //! and a refined round's dielectric whose far patch hypothesis fails that test is settled at
@@ -76,6 +79,15 @@ pub struct HopCandidate {
     pub objective: f64,
     pub objective_target: f64,
     pub objective_after: f64,
+    /// A metal hypothesis whose one colour scores within `gain` of the fit
+    /// (`train.hop.plain_metal`). In the plain metals' own hop, `objective_after` is the
+    /// hopped segment's objective at one colour per segment.
+    #[serde(default)]
+    pub plain: bool,
+    /// This record is the plain metal's second hop, alone, after the first was undone (kept
+    /// or undone by `HopReport::plain_accepted`).
+    #[serde(default)]
+    pub alone: bool,
 }
 
 /// A segment at the hop's check: its mean fitted σ and objective, the sweep's best σ and
@@ -149,7 +161,11 @@ pub struct HopReport {
     pub objective_before: f64,
     pub objective_after: Option<f64>,
     pub accepted: bool,
-    /// Whether the patch candidates' hop, run after the other, was kept (None: none ran).
+    /// Whether the plain metals' hop, run after an undone first hop, was kept (None: none
+    /// ran; `train.hop.plain_metal`).
+    #[serde(default)]
+    pub plain_accepted: Option<bool>,
+    /// Whether the patch candidates' hop, run after the others, was kept (None: none ran).
     #[serde(default)]
     pub patch_accepted: Option<bool>,
     /// Steps run (both phases of each hop).
@@ -219,6 +235,8 @@ struct Hypotheses<'a> {
     sweep: bool,
     /// The σ sweep of a metal with one base colour per segment.
     metal: bool,
+    /// One colour per segment at the fitted mean σ and m (scored with `metal` too).
+    uniform: bool,
     /// The last round's model, whose material is scored under these shadings.
     carried: Option<&'a FiptModel>,
 }
@@ -333,19 +351,23 @@ fn evaluate(
                 Vec::new()
             };
             let (sigma, metallic) = (mean(&mat.sigma), mean(&mat.metallic));
-            let (metal, uniform) = if with.metal {
+            let metal = if with.metal {
                 let colours: Vec<glam::Vec3> = sig
                     .iter()
                     .map(|&sg| uniform_colour(&b, &alpha, sg, 1.0))
                     .collect();
-                // The same one-colour model at the fit's mean σ and m: what the metal is
-                // measured against (the fit's own a, free per point, fits any σ better).
+                profile(&sig, &|k, _| colours[k], &|_| 1.0)
+            } else {
+                Vec::new()
+            };
+            // The same one-colour model at the fit's mean σ and m: what the metal is measured
+            // against (the fit's own a, free per point, fits any σ better).
+            let uniform = if with.metal || with.uniform {
                 let (sg, m) = (sigma as f32, metallic as f32);
                 let a = uniform_colour(&b, &alpha, sg, m);
-                let uniform = profile(&[sg], &|_, _| a, &|_| m)[0];
-                (profile(&sig, &|k, _| colours[k], &|_| 1.0), uniform)
+                profile(&[sg], &|_, _| a, &|_| m)[0]
             } else {
-                (Vec::new(), f64::NAN)
+                f64::NAN
             };
             let carried = with.carried.map(|prev| {
                 let pm = prev.material(&b.x_unit, &b.part);
@@ -468,6 +490,30 @@ fn patch_fallbacks(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandi
         .collect()
 }
 
+/// The segments whose winning hypothesis is not the patch's and whose metal hypothesis counts
+/// and is plain (`train.hop.plain_metal`), with that metal hypothesis, whether it won or gave
+/// way to the carried material or a larger gain: if the first hop is undone, these hop again
+/// as that metal, alone.
+fn plain_fallbacks(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
+    if !cfg.plain_metal {
+        return Vec::new();
+    }
+    let every = HopConfig {
+        carried_first: false,
+        ..cfg.clone()
+    };
+    checks
+        .iter()
+        .filter_map(|c| {
+            let first = options(cfg, c).into_iter().next()?;
+            (first.source != Hypothesis::Patch)
+                .then(|| options(&every, c).into_iter().find(|h| h.plain))
+                .flatten()
+        })
+        .map(|c| HopCandidate { alone: true, ..c })
+        .collect()
+}
+
 /// Every hypothesis that counts for one segment (`candidates`), the largest relative gain
 /// first.
 fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
@@ -526,6 +572,9 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
             } else {
                 c.before
             };
+            let plain = cfg.plain_metal
+                && source == Hypothesis::Metal
+                && obj <= (1.0 + cfg.gain as f64) * c.before;
             HopCandidate {
                 segment: c.segment,
                 pixels: c.pixels,
@@ -539,6 +588,8 @@ fn options(cfg: &HopConfig, c: &SegmentObjective) -> Vec<HopCandidate> {
                 objective: measured,
                 objective_target: obj,
                 objective_after: measured,
+                plain,
+                alone: false,
             }
         })
         .collect()
@@ -640,6 +691,7 @@ pub fn hop(
     let with = Hypotheses {
         sweep: true,
         metal: plan.cfg.metal,
+        uniform: false,
         carried: plan.carried.filter(|_| plan.cfg.carry),
     };
     let before = evaluate(&tr.model, store, &samples, prior, with);
@@ -661,6 +713,7 @@ pub fn hop(
     } else {
         Vec::new()
     };
+    let mut plains = plain_fallbacks(plan.cfg, &segments);
     let mut report = HopReport {
         candidates: candidates(plan.cfg, &segments),
         segments,
@@ -671,9 +724,7 @@ pub fn hop(
     if report.candidates.is_empty() {
         return Ok((tr, report));
     }
-    // Two hops, one after the other, each kept or undone on its own: the sweep, the metal and
-    // the carried material, then the patch candidates (measured in their own terms, and held
-    // at their targets through both phases).
+    // Up to three hops, one after the other, each kept or undone on its own (`Stage`).
     let mut tr = tr;
     let mut cands = std::mem::take(&mut report.candidates);
     let mut after = Vec::new();
@@ -691,19 +742,32 @@ pub fn hop(
         .collect();
     // Each segment's objective as the next hop finds it.
     let mut entering: Vec<f64> = before.iter().map(|e| e.own).collect();
-    for patch in [false, true] {
-        let group: Vec<usize> = (0..cands.len())
-            .filter(|&k| (cands[k].source == Hypothesis::Patch) == patch)
-            .collect();
+    // The plain metals of an undone first hop (indices into `cands`), whether that first hop
+    // was undone, and the segments the plain metals' hop kept.
+    let mut plain_group: Vec<usize> = Vec::new();
+    let mut first_undone = false;
+    let mut kept_plain: Vec<i32> = Vec::new();
+    for stage in [Stage::First, Stage::Plain, Stage::Patch] {
+        // The segments of an undone first hop try their patch hypothesis with the patch
+        // candidates, but for those the plain metals' hop kept.
+        if stage == Stage::Patch && first_undone {
+            fallbacks.retain(|f| !kept_plain.contains(&f.segment));
+            cands.append(&mut fallbacks);
+        }
+        let group: Vec<usize> = match stage {
+            Stage::First => (0..cands.len())
+                .filter(|&k| cands[k].source != Hypothesis::Patch)
+                .collect(),
+            Stage::Plain => std::mem::take(&mut plain_group),
+            Stage::Patch => (0..cands.len())
+                .filter(|&k| cands[k].source == Hypothesis::Patch)
+                .collect(),
+        };
         if group.is_empty() {
             continue;
         }
         let mut chosen: Vec<HopCandidate> = group.iter().map(|&k| cands[k].clone()).collect();
-        let kind = if patch {
-            Hypothesis::Patch
-        } else {
-            Hypothesis::Sweep
-        };
+        let kind = stage.kind();
         let kept = tr.clone();
         let mut guards: Vec<(i32, f64, f64)> = Vec::new();
         let mut helped = false;
@@ -712,24 +776,38 @@ pub fn hop(
         for attempt in 0..2 {
             let start = if attempt == 0 { tr } else { kept.clone() };
             let (hopped, steps) =
-                hop_phases(start, store, plan, &chosen, &guards, &held_at, patch)?;
+                hop_phases(start, store, plan, &chosen, &guards, &held_at, stage)?;
             tr = hopped;
             report.steps += steps;
-            after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
+            let with = Hypotheses {
+                uniform: stage == Stage::Plain,
+                ..Hypotheses::default()
+            };
+            after = evaluate(&tr.model, store, &samples, prior, with);
             for c in &mut chosen {
                 if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
                     c.sigma_after = after[k].sigma;
                     c.metallic_after = after[k].metallic;
-                    c.objective_after = after[k].own;
+                    // A plain metal is measured at one colour per segment, as proposed.
+                    c.objective_after = if stage == Stage::Plain {
+                        after[k].uniform
+                    } else {
+                        after[k].own
+                    };
                 }
                 // A patch candidate is measured as it was proposed: with the colour solved
                 // per patch.
-                if let (true, Some(p)) = (patch, &patches) {
+                if let (Stage::Patch, Some(p)) = (stage, &patches) {
                     let metal = patch_as_metal(plan.cfg, c.metallic);
                     c.objective_after = p.at_model(&tr.model, c.segment, metal);
                 }
             }
-            helped = hop_helped(&chosen, thresholds(plan.cfg, kind).0);
+            let gain = thresholds(plan.cfg, kind).0;
+            helped = if stage == Stage::Plain {
+                plain_held(&chosen, gain)
+            } else {
+                hop_helped(&chosen, gain)
+            };
             if attempt > 0 || !(helped && plan.cfg.guard) {
                 break;
             }
@@ -740,10 +818,10 @@ pub fn hop(
             }
             report.guarded.extend(guards.iter().map(|g| g.0));
         }
-        if patch {
-            report.patch_accepted = Some(helped);
-        } else {
-            report.accepted = helped;
+        match stage {
+            Stage::First => report.accepted = helped,
+            Stage::Plain => report.plain_accepted = Some(helped),
+            Stage::Patch => report.patch_accepted = Some(helped),
         }
         if !helped {
             tr = kept;
@@ -753,9 +831,17 @@ pub fn hop(
         for (&k, c) in group.iter().zip(chosen) {
             cands[k] = c;
         }
-        // The segments of an undone first hop try their patch hypothesis in the second.
-        if !patch && !helped {
-            cands.append(&mut fallbacks);
+        match stage {
+            // The plain metals of an undone first hop hop again, alone.
+            Stage::First if !helped => {
+                first_undone = true;
+                plain_group = (cands.len()..cands.len() + plains.len()).collect();
+                cands.append(&mut plains);
+            }
+            Stage::Plain if helped => {
+                kept_plain = group.iter().map(|&k| cands[k].segment).collect();
+            }
+            _ => {}
         }
         // A segment whose hop was kept is held where it hopped to, not where it settled.
         for ((h, a), t) in held_at.iter_mut().zip(&after).zip(&settle) {
@@ -771,6 +857,52 @@ pub fn hop(
     }
     report.objective_after = Some(whole(&samples, &after));
     Ok((tr, report))
+}
+
+/// The hops tried after a fit, in order, each kept or undone on its own.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// The sweep, metal and carried candidates, measured against the fit.
+    First,
+    /// The plain metals of an undone first hop's segments, alone (`train.hop.plain_metal`),
+    /// held at their targets through both phases and measured at one colour per segment.
+    Plain,
+    /// The patch candidates, with the fallbacks of an undone first hop, measured in their own
+    /// terms and held at their targets through both phases.
+    Patch,
+}
+
+impl Stage {
+    /// The hypothesis whose `thresholds` the stage's decision and guard use.
+    fn kind(self) -> Hypothesis {
+        match self {
+            Stage::First => Hypothesis::Sweep,
+            Stage::Plain => Hypothesis::Metal,
+            Stage::Patch => Hypothesis::Patch,
+        }
+    }
+
+    /// Whether its candidates stay pulled to their targets through the release phase.
+    fn held(self) -> bool {
+        self != Stage::First
+    }
+
+    /// Its hop's stream of random draws.
+    fn stream(self) -> u64 {
+        match self {
+            Stage::First => 0x40b,
+            Stage::Patch => 0x40c,
+            Stage::Plain => 0x40d,
+        }
+    }
+}
+
+/// Whether the plain metals' hop held (`train.hop.plain_metal`): their size-weighted objective
+/// at one colour per segment, after the hop, lies within `gain` of the fit's objective before
+/// it (the colour free), as it did when the metal was proposed.
+fn plain_held(c: &[HopCandidate], gain: f32) -> bool {
+    let sum = |f: fn(&HopCandidate) -> f64| c.iter().map(|c| f(c) * c.pixels as f64).sum::<f64>();
+    sum(|c| c.objective_after) <= (1.0 + gain as f64) * sum(|c| c.objective)
 }
 
 /// The segments a kept hop harmed (`train.hop.guard`), with the σ and m to hold them at: those
@@ -801,13 +933,15 @@ fn harmed(
 }
 
 /// The hop's two phases on `tr` for `chosen`: the fit continues with σ (and m where a target
-/// names one) pulled to their targets, then as many steps again released, except with `held`
-/// (the patch candidates: at the fit's free colour their data is flat over σ, and the prior
-/// alone would take them back) and, with `hold_metals` > 0, the candidates that hop as metals,
+/// names one) pulled to their targets, then as many steps again released, except where the
+/// `stage` holds them (`Stage::held`: the patch candidates, at the fit's free colour their data
+/// flat over σ and the prior alone would take them back; the plain metals, whose data is as
+/// flat between the metal and a dielectric) and, with `hold_metals` > 0, the candidates that
+/// hop as metals,
 /// pulled at that weight (with the colour free again the data is flat over a mirror's σ, and
 /// the prior takes it rough). Where `anchor` > 0, every other segment of `held_at` (segment,
 /// mean σ, mean m) is pulled to its σ and m through both phases. `guards` (segment, σ, m) are
-/// pulled like the candidates, through the pull phase and, where `held`, the release too.
+/// pulled like the candidates, through the pull phase and, where held, the release too.
 /// Returns the hopped trainer and the steps run.
 fn hop_phases(
     mut tr: Trainer,
@@ -816,8 +950,9 @@ fn hop_phases(
     chosen: &[HopCandidate],
     guards: &[(i32, f64, f64)],
     held_at: &[(i32, f64, f64)],
-    held: bool,
+    stage: Stage,
 ) -> anyhow::Result<(Trainer, usize)> {
+    let held = stage.held();
     // The fit's batch sizes and segments; draws of its own (uniform with replacement).
     let Shape {
         batch,
@@ -827,7 +962,7 @@ fn hop_phases(
     } = Shape::of(store, plan.mode, plan.schedule);
     let phase = ((plan.cfg.steps as f64 * total as f64).round() as usize).max(1);
     let segments = Sampler::segments_of(store, true);
-    let mut rng = Rng::new(plan.seed, if held { 0x40c } else { 0x40b });
+    let mut rng = Rng::new(plan.seed, stage.stream());
     let ds = tr
         .device_resident()
         .then(|| DeviceStore::upload(&store.pixels, &tr.device));
@@ -1201,6 +1336,7 @@ mod tests {
         let with = Hypotheses {
             sweep: true,
             metal: true,
+            uniform: false,
             carried: None,
         };
         let e = evaluate(&tr.model, &st, &samples, DiffusePrior::NONE, with).remove(0);
@@ -1273,6 +1409,101 @@ mod tests {
             pulled[k],
             free[k]
         );
+    }
+
+    /// A metal hypothesis is plain where its one colour per segment scores within `gain` of
+    /// the fit's objective (`plain_metal`), and only then: a metal that wins against one colour
+    /// at the fitted σ and m but needs more than the fit's free colour to match it is not, nor
+    /// is any other hypothesis; a plain metal is its segment's fallback where another
+    /// hypothesis won; the plain metals' hop holds while their one colour after it stays within
+    /// `gain` of the fit's objective before it.
+    #[test]
+    fn a_plain_metal_matches_the_fit_with_one_colour() {
+        let sig = sweep();
+        let samples = [SegmentSample {
+            id: 6,
+            size: 300,
+            idx: Vec::new(),
+        }];
+        // The fit: σ 0.9, m 0, objective 1; the sweep finds nothing lower.
+        let fit = checks(&samples, &[eval(0.9, 1.0, 0, 2.0)]).remove(0);
+        let row = |metal: (f64, f64, f64)| SegmentObjective {
+            metal: Some(metal),
+            ..fit.clone()
+        };
+        let cfg = HopConfig::default();
+        let gain = cfg.gain as f64;
+        // One metal colour at σ 0.46 as good as the fit (colour free), and far better than one
+        // colour at the fitted σ and m: plain.
+        let c = candidates(&cfg, &[row((0.46, 1.0, 3.0))]);
+        assert_eq!(c[0].source, Hypothesis::Metal);
+        assert!(c[0].plain);
+        // Just within `gain` of the fit, and just beyond it.
+        assert!(candidates(&cfg, &[row((0.46, 1.0 + 0.9 * gain, 3.0))])[0].plain);
+        let beyond = candidates(&cfg, &[row((0.46, 1.0 + 1.1 * gain, 3.0))]);
+        assert_eq!(beyond[0].source, Hypothesis::Metal);
+        assert!(!beyond[0].plain);
+        // A metal three times the fit's objective that still halves its own baseline: a
+        // candidate, not plain (a dielectric counter whose colour one metal colour cannot
+        // carry).
+        let counter = candidates(&cfg, &[row((0.46, 3.0, 6.0))]);
+        assert_eq!(counter[0].source, Hypothesis::Metal);
+        assert!(!counter[0].plain);
+        // The key off: no metal is plain.
+        let off = HopConfig {
+            plain_metal: false,
+            ..HopConfig::default()
+        };
+        assert!(!candidates(&off, &[row((0.46, 1.0, 3.0))])[0].plain);
+        // The sweep's candidate is never plain, however low its objective.
+        let far = sig.iter().position(|&s| s >= 0.3).unwrap();
+        let sweep_row = checks(&samples, &[eval(0.95, 1.0, far, 0.5)]);
+        let c = candidates(&cfg, &sweep_row);
+        assert_eq!(c[0].source, Hypothesis::Sweep);
+        assert!(!c[0].plain);
+        // The plain hop holds at one colour within `gain` of the fit's objective, size-weighted.
+        let hopped = |after: f64, pixels: usize| HopCandidate {
+            objective: 1.0,
+            objective_after: after,
+            pixels,
+            ..c[0].clone()
+        };
+        assert!(plain_held(&[hopped(1.0 + 0.9 * gain, 300)], cfg.gain));
+        assert!(!plain_held(&[hopped(1.0 + 1.1 * gain, 300)], cfg.gain));
+        assert!(plain_held(
+            &[hopped(1.0 + 2.0 * gain, 100), hopped(1.0, 300)],
+            cfg.gain
+        ));
+        assert!(!plain_held(
+            &[hopped(1.0 + 2.0 * gain, 300), hopped(1.0, 100)],
+            cfg.gain
+        ));
+        // A carried material that counts wins the first hop with `carried_first`; the plain
+        // metal is still the segment's fallback if that hop is undone, and a metal that is not
+        // plain is none.
+        let carried = SegmentObjective {
+            carried: Some((0.5, 0.98, 0.8)),
+            ..row((0.46, 1.0, 3.0))
+        };
+        let c = candidates(&cfg, std::slice::from_ref(&carried));
+        assert_eq!(c[0].source, Hypothesis::Carried);
+        let again = plain_fallbacks(&cfg, std::slice::from_ref(&carried));
+        assert_eq!(again.len(), 1);
+        assert_eq!(
+            (again[0].source, again[0].target, again[0].target_metallic),
+            (Hypothesis::Metal, 0.46, Some(1.0))
+        );
+        assert!(again[0].plain && again[0].alone);
+        let rough = SegmentObjective {
+            metal: Some((0.46, 3.0, 6.0)),
+            ..carried.clone()
+        };
+        assert!(plain_fallbacks(&cfg, &[rough]).is_empty());
+        assert!(plain_fallbacks(&off, &[carried]).is_empty());
+        // Its hop stays pulled through the release, on a stream of its own.
+        assert!(Stage::Plain.held() && !Stage::First.held());
+        let streams = [Stage::First, Stage::Plain, Stage::Patch].map(Stage::stream);
+        assert!(streams[0] != streams[1] && streams[1] != streams[2] && streams[0] != streams[2]);
     }
 
     /// The last round's material is scored under this round's shadings: with the same model it
@@ -1628,6 +1859,8 @@ mod tests {
             objective: 1.0,
             objective_target: 0.5,
             objective_after: 1.0,
+            plain: false,
+            alone: false,
         }
     }
 
@@ -1665,8 +1898,16 @@ mod tests {
                 ..HopConfig::default()
             };
             let plan = toy_plan(&hc, &schedule, 5e-4, 0.01);
-            let (out, _) =
-                hop_phases(tr.clone(), &st, &plan, &chosen, guards, &held_at, true).unwrap();
+            let (out, _) = hop_phases(
+                tr.clone(),
+                &st,
+                &plan,
+                &chosen,
+                guards,
+                &held_at,
+                Stage::Patch,
+            )
+            .unwrap();
             let after = at(&out);
             let others = 1..samples.len();
             let drift = others
@@ -1800,7 +2041,7 @@ mod tests {
                 std::slice::from_ref(c),
                 &[],
                 &[],
-                false,
+                Stage::First,
             )
             .unwrap();
             let a = at(&out);
