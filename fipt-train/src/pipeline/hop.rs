@@ -478,13 +478,24 @@ fn candidates(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate>
 /// The segments whose winning hypothesis is not the patch's, with their patch hypothesis where
 /// it counts too: if the first hop is undone, these hop with the patch candidates.
 fn patch_fallbacks(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandidate> {
+    first_hop_fallbacks(cfg, checks, cfg, |h| h.source == Hypothesis::Patch)
+}
+
+/// For each segment whose winning hypothesis (under `cfg`) is not the patch's, so that it hops
+/// in the first hop: the first of its hypotheses under `alternatives`, best first, that `pick`
+/// accepts.
+fn first_hop_fallbacks(
+    cfg: &HopConfig,
+    checks: &[SegmentObjective],
+    alternatives: &HopConfig,
+    pick: impl Fn(&HopCandidate) -> bool,
+) -> Vec<HopCandidate> {
     checks
         .iter()
         .filter_map(|c| {
-            let mut o = options(cfg, c).into_iter();
-            let first = o.next()?;
+            let first = options(cfg, c).into_iter().next()?;
             (first.source != Hypothesis::Patch)
-                .then(|| o.find(|h| h.source == Hypothesis::Patch))
+                .then(|| options(alternatives, c).into_iter().find(&pick))
                 .flatten()
         })
         .collect()
@@ -502,14 +513,8 @@ fn plain_fallbacks(cfg: &HopConfig, checks: &[SegmentObjective]) -> Vec<HopCandi
         carried_first: false,
         ..cfg.clone()
     };
-    checks
-        .iter()
-        .filter_map(|c| {
-            let first = options(cfg, c).into_iter().next()?;
-            (first.source != Hypothesis::Patch)
-                .then(|| options(&every, c).into_iter().find(|h| h.plain))
-                .flatten()
-        })
+    first_hop_fallbacks(cfg, checks, &every, |h| h.plain)
+        .into_iter()
         .map(|c| HopCandidate { alone: true, ..c })
         .collect()
 }
@@ -742,27 +747,20 @@ pub fn hop(
         .collect();
     // Each segment's objective as the next hop finds it.
     let mut entering: Vec<f64> = before.iter().map(|e| e.own).collect();
-    // The plain metals of an undone first hop (indices into `cands`), whether that first hop
-    // was undone, and the segments the plain metals' hop kept.
-    let mut plain_group: Vec<usize> = Vec::new();
-    let mut first_undone = false;
-    let mut kept_plain: Vec<i32> = Vec::new();
     for stage in [Stage::First, Stage::Plain, Stage::Patch] {
-        // The segments of an undone first hop try their patch hypothesis with the patch
-        // candidates, but for those the plain metals' hop kept.
-        if stage == Stage::Patch && first_undone {
-            fallbacks.retain(|f| !kept_plain.contains(&f.segment));
-            cands.append(&mut fallbacks);
+        // The segments of an undone first hop hop again: the plain metals alone, then the
+        // patch hypotheses with the patch candidates (but for the segments the plain metals'
+        // hop kept).
+        if !report.accepted {
+            match stage {
+                Stage::First => {}
+                Stage::Plain => cands.append(&mut plains),
+                Stage::Patch => cands.append(&mut fallbacks),
+            }
         }
-        let group: Vec<usize> = match stage {
-            Stage::First => (0..cands.len())
-                .filter(|&k| cands[k].source != Hypothesis::Patch)
-                .collect(),
-            Stage::Plain => std::mem::take(&mut plain_group),
-            Stage::Patch => (0..cands.len())
-                .filter(|&k| cands[k].source == Hypothesis::Patch)
-                .collect(),
-        };
+        let group: Vec<usize> = (0..cands.len())
+            .filter(|&k| Stage::of(&cands[k]) == stage)
+            .collect();
         if group.is_empty() {
             continue;
         }
@@ -828,20 +826,11 @@ pub fn hop(
             after = evaluate(&tr.model, store, &samples, prior, Hypotheses::default());
         }
         entering = after.iter().map(|e| e.own).collect();
+        if stage == Stage::Plain && helped {
+            fallbacks.retain(|f| chosen.iter().all(|c| c.segment != f.segment));
+        }
         for (&k, c) in group.iter().zip(chosen) {
             cands[k] = c;
-        }
-        match stage {
-            // The plain metals of an undone first hop hop again, alone.
-            Stage::First if !helped => {
-                first_undone = true;
-                plain_group = (cands.len()..cands.len() + plains.len()).collect();
-                cands.append(&mut plains);
-            }
-            Stage::Plain if helped => {
-                kept_plain = group.iter().map(|&k| cands[k].segment).collect();
-            }
-            _ => {}
         }
         // A segment whose hop was kept is held where it hopped to, not where it settled.
         for ((h, a), t) in held_at.iter_mut().zip(&after).zip(&settle) {
@@ -873,6 +862,17 @@ enum Stage {
 }
 
 impl Stage {
+    /// The stage a candidate hops in.
+    fn of(c: &HopCandidate) -> Stage {
+        if c.source == Hypothesis::Patch {
+            Stage::Patch
+        } else if c.alone {
+            Stage::Plain
+        } else {
+            Stage::First
+        }
+    }
+
     /// The hypothesis whose `thresholds` the stage's decision and guard use.
     fn kind(self) -> Hypothesis {
         match self {
