@@ -70,8 +70,9 @@ pub(super) struct Hypotheses<'a> {
     pub(super) sweep: bool,
     /// The σ sweep of a metal with one base colour per segment.
     pub(super) metal: bool,
-    /// One colour per segment at the fitted mean σ and m (scored with `metal` too).
-    pub(super) uniform: bool,
+    /// The segments also scored at one colour per segment at the fitted mean σ and m (every
+    /// segment where `metal`).
+    pub(super) uniform: &'a [i32],
     /// The last round's model, whose material is scored under these shadings.
     pub(super) carried: Option<&'a FiptModel>,
 }
@@ -197,7 +198,7 @@ pub(super) fn evaluate(
             };
             // The same one-colour model at the fit's mean σ and m: what the metal is measured
             // against (the fit's own a, free per point, fits any σ better).
-            let uniform = if with.metal || with.uniform {
+            let uniform = if with.metal || with.uniform.contains(&s.id) {
                 let (sg, m) = (sigma as f32, metallic as f32);
                 let a = uniform_colour(&b, &alpha, sg, m);
                 profile(&[sg], &|_, _| a, &|_| m)[0]

@@ -96,7 +96,7 @@ pub fn hop(
     let with = Hypotheses {
         sweep: true,
         metal: plan.cfg.metal,
-        uniform: false,
+        uniform: &[],
         carried: plan.carried.filter(|_| plan.cfg.carry),
     };
     let before = evaluate(&tr.model, store, &samples, prior, with);
@@ -177,8 +177,13 @@ pub fn hop(
                 hop_phases(start, store, plan, &chosen, &guards, &held_at, stage)?;
             tr = hopped;
             report.steps += steps;
+            // The plain metals are scored at one colour per segment too (only they).
+            let plain: Vec<i32> = match stage {
+                Stage::Plain => chosen.iter().map(|c| c.segment).collect(),
+                _ => Vec::new(),
+            };
             let with = Hypotheses {
-                uniform: stage == Stage::Plain,
+                uniform: &plain,
                 ..Hypotheses::default()
             };
             after = evaluate(&tr.model, store, &samples, prior, with);

@@ -192,7 +192,7 @@ fn the_metal_hypothesis_finds_a_metal() {
     let with = Hypotheses {
         sweep: true,
         metal: true,
-        uniform: false,
+        uniform: &[],
         carried: None,
     };
     let e = evaluate(&tr.model, &st, &samples, DiffusePrior::NONE, with).remove(0);
