@@ -165,6 +165,15 @@ pub fn hop(
             continue;
         }
         let mut chosen: Vec<HopCandidate> = group.iter().map(|&k| cands[k].clone()).collect();
+        // What each try is scored at: the plain metals at one colour per segment too (only they).
+        let plain: Vec<i32> = match stage {
+            Stage::Plain => chosen.iter().map(|c| c.segment).collect(),
+            _ => Vec::new(),
+        };
+        let with = Hypotheses {
+            uniform: &plain,
+            ..Hypotheses::default()
+        };
         let kind = stage.kind();
         let kept = tr.clone();
         let mut guards: Vec<(i32, f64, f64)> = Vec::new();
@@ -177,15 +186,6 @@ pub fn hop(
                 hop_phases(start, store, plan, &chosen, &guards, &held_at, stage)?;
             tr = hopped;
             report.steps += steps;
-            // The plain metals are scored at one colour per segment too (only they).
-            let plain: Vec<i32> = match stage {
-                Stage::Plain => chosen.iter().map(|c| c.segment).collect(),
-                _ => Vec::new(),
-            };
-            let with = Hypotheses {
-                uniform: &plain,
-                ..Hypotheses::default()
-            };
             after = evaluate(&tr.model, store, &samples, prior, with);
             for c in &mut chosen {
                 if let Some(k) = samples.iter().position(|s| s.id == c.segment) {
