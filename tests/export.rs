@@ -72,6 +72,37 @@ fn png(path: &Path) -> image::DynamicImage {
     image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// Renders `views` of the Mitsuba export in `out` with Mitsuba 3 (a quarter of the pixels, 128
+/// spp) and scores them against the photos in `refs`: the mean PSNR and the trivial predictor's.
+fn mitsuba_psnr(out: &Path, views: &str, refs: &Path) -> (f64, f64) {
+    let python = tool_path(
+        "FIPT_MITSUBA_PYTHON",
+        ".cache/fipt-tools/mitsuba/bin/python",
+    );
+    assert!(
+        python.exists(),
+        "{}: no Python with Mitsuba 3 (bash .ci/test installs it; or set FIPT_MITSUBA_PYTHON)",
+        python.display()
+    );
+    let script =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/mitsuba/render_export.py");
+    let o = Command::new(&python)
+        .arg(&script)
+        .arg(out.join("scene.xml"))
+        .args(["--out", out.join("mitsuba").to_str().unwrap()])
+        .args(["--views", views, "--spp", "128", "--scale", "2"])
+        .args(["--reference", refs.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let key = refs.to_str().unwrap();
+    (
+        m["mean_psnr"][key].as_f64().unwrap(),
+        m["mean_trivial_psnr"][key].as_f64().unwrap(),
+    )
+}
+
 /// The true scene of fipt-room: every glTF file validates with 0 errors; one material per part
 /// and per emitting part; σ, m and a land in the textures at each part's triangles with the
 /// documented mapping (glTF roughness = σ, metallic = m, base colour sRGB-encoded); the Mitsuba
@@ -182,35 +213,53 @@ fn truth_export_validates_maps_and_renders() {
 
     // Mitsuba renders the exported truth: at a quarter of the pixels and 128 spp, the val views
     // against the photos.
-    let python = tool_path(
-        "FIPT_MITSUBA_PYTHON",
-        ".cache/fipt-tools/mitsuba/bin/python",
-    );
-    assert!(
-        python.exists(),
-        "{}: no Python with Mitsuba 3 (bash .ci/test installs it; or set FIPT_MITSUBA_PYTHON)",
-        python.display()
-    );
-    let script =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/mitsuba/render_export.py");
-    let refs = scene.join("val/Image");
-    let o = Command::new(&python)
-        .arg(&script)
-        .arg(out.join("scene.xml"))
-        .args(["--out", out.join("mitsuba").to_str().unwrap()])
-        .args(["--views", "0,3", "--spp", "128", "--scale", "2"])
-        .args(["--reference", refs.to_str().unwrap()])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let m: Value = serde_json::from_slice(&o.stdout).unwrap();
-    let key = refs.to_str().unwrap();
-    let (psnr, trivial) = (
-        m["mean_psnr"][key].as_f64().unwrap(),
-        m["mean_trivial_psnr"][key].as_f64().unwrap(),
-    );
+    let (psnr, trivial) = mitsuba_psnr(&out, "0,3", &scene.join("val/Image"));
     println!("Mitsuba's render of the exported truth: {psnr:.2} dB (trivial {trivial:.2})");
-    assert!(psnr > 25.0 && psnr > trivial + 8.0, "{m}");
+    assert!(
+        psnr > 25.0 && psnr > trivial + 8.0,
+        "{psnr} dB, trivial {trivial} dB"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// `--split train`: the training views become the cameras, named `train_NNN`, and Mitsuba's
+/// renders of them match the training photos (a camera taken from the wrong split, or mapped
+/// wrongly, renders another view and scores near the trivial predictor); the true emitters
+/// carry their material.
+#[test]
+fn truth_export_of_the_train_views_renders_the_photos() {
+    let scene = scene_dir();
+    let out = tmp_dir("export-train");
+    let r = ok(&export(&[
+        "--truth",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--format",
+        "mitsuba",
+        "--split",
+        "train",
+        "--texels",
+        "512",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]));
+    assert_eq!(r["cameras"], 48);
+    let xml = std::fs::read_to_string(out.join("scene.xml")).unwrap();
+    assert!(xml.contains("\"train_047\"") && !xml.contains("\"val_000\""));
+    // The true emitters reflect with their own material, as the photos' do.
+    let emitting: Vec<&str> = xml
+        .split("<shape")
+        .filter(|s| s.contains("<emitter"))
+        .collect();
+    assert!(!emitting.is_empty());
+    assert!(emitting.iter().all(|s| s.contains("\"principled\"")));
+    let (psnr, trivial) = mitsuba_psnr(&out, "0,1", &scene.join("train/Image"));
+    println!("Mitsuba's render of train views 0 and 1: {psnr:.2} dB (trivial {trivial:.2})");
+    assert!(
+        psnr > 22.0 && psnr > trivial + 12.0,
+        "{psnr} dB, trivial {trivial} dB"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -133,6 +133,7 @@ fn scene_viewer(h: &mut String, scene: &Path, out: &Path, img_dir: &Path) -> Res
             zoo: out.join("zoo"),
         },
         scene: Some(scene.to_path_buf()),
+        split: crate::export::CameraSplit::Val,
         formats: vec![crate::export::Format::Viewer],
         out: img_dir.join("viewer"),
         texels: VIEWER_TEXELS,

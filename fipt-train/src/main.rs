@@ -156,7 +156,7 @@ enum Cmd {
     Render(RenderArgs),
     /// A recovered scene model (`--model`) or a scene's ground truth (`--truth`) as glTF 2.0
     /// and Mitsuba 3 files: the field baked into textures over a UV atlas, one material per
-    /// part, emitters with their radiance, the val views' cameras.
+    /// part, emitters with their radiance, the cameras of one split (the val views by default).
     #[command(group(clap::ArgGroup::new("source").required(true).args(["truth", "model"])))]
     Export {
         /// A scene model folder, or a name in the zoo.
@@ -166,10 +166,14 @@ enum Cmd {
         /// scene_meta.json).
         #[arg(long)]
         truth: bool,
-        /// The scene folder: its parts and val cameras (default for a model: the folder it
-        /// was recovered from, where it still exists).
+        /// The scene folder: its parts and cameras (default for a model: the folder it was
+        /// recovered from, where it still exists).
         #[arg(long)]
         scene: Option<PathBuf>,
+        /// The split whose views become the cameras (`<split>_NNN`): val, or train, whose
+        /// renders stand in for the photos.
+        #[arg(long, value_enum, default_value_t = fipt_train::export::CameraSplit::Val)]
+        split: fipt_train::export::CameraSplit,
         /// glb (one file), gltf (.gltf + .bin + PNGs), mitsuba (scene.xml + PLY + PNGs) or
         /// viewer (scene.glb with an offline WebGL viewer page); repeat or comma-separate.
         #[arg(long, value_delimiter = ',', required = true)]
@@ -635,6 +639,7 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             model,
             truth: _,
             scene,
+            split,
             format,
             out,
             texels,
@@ -652,6 +657,7 @@ fn dispatch(cmd: Cmd) -> anyhow::Result<()> {
             let job = fipt_train::export::ExportJob {
                 source,
                 scene,
+                split,
                 formats: format,
                 out: out.clone(),
                 texels,

@@ -7,17 +7,24 @@
 //!   lobe (Burley's, with retro-reflection, against Lambert) and its dielectric Fresnel (exact,
 //!   η = 1.5, against Schlick): `docs/export.md`.
 //! - Emitting groups: area lights, one shape per radiance value (Mitsuba 3.9.1's scalar
-//!   variant crashes on a per-face `mesh_attribute` radiance), and a black BSDF.
+//!   variant crashes on a per-face `mesh_attribute` radiance). Where the emitters reflect
+//!   (`Scene::emitters_reflect`: the ground truth) they carry the reflecting groups' BSDF with
+//!   their own texels, else a black one.
 //!   Mitsuba's area light emits along the winding normal only: triangles fipt saw emit from
 //!   their back get a copy with flipped normals; two-sided ones get that copy too, moved a
 //!   hair behind the front face (coincident copies would hide one side).
-//! - Sensors: one perspective sensor per val view (`look_at` convention: columns left, up,
+//! - Sensors: one perspective sensor per exported view (`look_at` convention: columns left, up,
 //!   forward), a box filter; `$spp` and `$max_depth` are parameters with defaults.
 //!
 //! Owns: the Mitsuba scene layout. Must not touch: the texture contents.
 
 use super::{Pngs, Scene};
 use anyhow::Result;
+
+/// The reflecting BSDF: `principled` on the baked textures, both sides.
+const PRINCIPLED: &str = "        <bsdf type=\"twosided\">\n            <bsdf type=\"principled\">\n                <ref name=\"base_color\" id=\"base_color\"/>\n                <ref name=\"roughness\" id=\"roughness\"/>\n                <ref name=\"metallic\" id=\"metallic\"/>\n                <float name=\"specular\" value=\"0.5\"/>\n            </bsdf>\n        </bsdf>\n";
+/// The BSDF of emitters that do not reflect.
+const BLACK: &str = "        <bsdf type=\"diffuse\">\n            <rgb name=\"reflectance\" value=\"0, 0, 0\"/>\n        </bsdf>\n";
 use fipt_bake::emitters::EmitterSides;
 use fipt_core::io::write_bytes_atomic;
 use std::fmt::Write as _;
@@ -135,8 +142,9 @@ pub fn write(s: &Scene, pngs: &Pngs, dir: &Path) -> Result<Vec<String>> {
             files.push(rel.clone());
             let _ = write!(
                 x,
-                "    <shape type=\"ply\" id=\"{}\">\n        <string name=\"filename\" value=\"{rel}\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <bsdf type=\"twosided\">\n            <bsdf type=\"principled\">\n                <ref name=\"base_color\" id=\"base_color\"/>\n                <ref name=\"roughness\" id=\"roughness\"/>\n                <ref name=\"metallic\" id=\"metallic\"/>\n                <float name=\"specular\" value=\"0.5\"/>\n            </bsdf>\n        </bsdf>\n    </shape>\n",
-                esc(&g.name)
+                "    <shape type=\"ply\" id=\"{}\">\n        <string name=\"filename\" value=\"{rel}\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n{}    </shape>\n",
+                esc(&g.name),
+                PRINCIPLED
             );
             continue;
         }
@@ -172,15 +180,20 @@ pub fn write(s: &Scene, pngs: &Pngs, dir: &Path) -> Result<Vec<String>> {
             for (r, tris) in by_radiance {
                 let r = r.map(f32::from_bits);
                 let rel = format!("meshes/{stem}{suffix}_{shape:03}.ply");
-                write_bytes_atomic(&dir.join(&rel), &ply(s, &tris, false, shift))?;
+                write_bytes_atomic(&dir.join(&rel), &ply(s, &tris, s.emitters_reflect, shift))?;
                 files.push(rel.clone());
                 let _ = write!(
                     x,
-                    "    <shape type=\"ply\" id=\"{}{suffix}_{shape:03}\">\n        <string name=\"filename\" value=\"{rel}\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <boolean name=\"flip_normals\" value=\"{flip}\"/>\n        <emitter type=\"area\">\n            <rgb name=\"radiance\" value=\"{}, {}, {}\"/>\n        </emitter>\n        <bsdf type=\"diffuse\">\n            <rgb name=\"reflectance\" value=\"0, 0, 0\"/>\n        </bsdf>\n    </shape>\n",
+                    "    <shape type=\"ply\" id=\"{}{suffix}_{shape:03}\">\n        <string name=\"filename\" value=\"{rel}\"/>\n        <boolean name=\"face_normals\" value=\"true\"/>\n        <boolean name=\"flip_normals\" value=\"{flip}\"/>\n        <emitter type=\"area\">\n            <rgb name=\"radiance\" value=\"{}, {}, {}\"/>\n        </emitter>\n{}    </shape>\n",
                     esc(&g.name),
                     r[0],
                     r[1],
-                    r[2]
+                    r[2],
+                    if s.emitters_reflect {
+                        PRINCIPLED
+                    } else {
+                        BLACK
+                    }
                 );
                 shape += 1;
             }

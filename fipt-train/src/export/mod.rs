@@ -5,9 +5,9 @@
 //! The material field is baked into textures over a UV atlas made for the mesh (`atlas`,
 //! `bake`). Materials follow the scene's parts (one per part of `scene_meta.json`, so users can
 //! edit them; one `surface` material without parts), and the emitting triangles of each part
-//! get a material of their own (`<part>.light`) carrying their radiance. The val views'
-//! cameras are exported where the scene folder has them. The mapping of fipt's BRDF onto each
-//! target's and what it cannot carry over: `docs/export.md`.
+//! get a material of their own (`<part>.light`) carrying their radiance. The cameras of one
+//! split (the val views by default) are exported where the scene folder has them. The mapping
+//! of fipt's BRDF onto each target's and what it cannot carry over: `docs/export.md`.
 //!
 //! OUT is locked while the export is written; its files are written in a staging folder inside
 //! OUT, moved into place, and `export.json` (the summary) is written last, so `export.json` is
@@ -53,13 +53,35 @@ pub enum Source {
     Truth,
 }
 
+/// The split of the scene folder whose views become the export's cameras.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum CameraSplit {
+    /// The held-out views (`val/transforms.json`).
+    #[default]
+    Val,
+    /// The training views (`train/transforms.json`): renders of them stand in for the photos.
+    Train,
+}
+
+impl CameraSplit {
+    /// The split's folder name, which also prefixes the cameras' names.
+    pub fn dir(self) -> &'static str {
+        match self {
+            CameraSplit::Val => "val",
+            CameraSplit::Train => "train",
+        }
+    }
+}
+
 /// One `export` command.
 #[derive(Clone, Debug)]
 pub struct ExportJob {
     pub source: Source,
-    /// The scene folder: parts (`scene_meta.json`) and val cameras. For a model, default: the
+    /// The scene folder: parts (`scene_meta.json`) and cameras. For a model, default: the
     /// folder it was recovered from, where it still exists.
     pub scene: Option<PathBuf>,
+    /// The split whose cameras are exported, named `<split>_NNN`.
+    pub split: CameraSplit,
     pub formats: Vec<Format>,
     pub out: PathBuf,
     /// Side of the square textures, in texels.
@@ -80,7 +102,8 @@ pub const SUMMARY: &str = "export.json";
 pub struct MaterialGroup {
     pub name: String,
     pub triangles: usize,
-    /// Emitting triangles: their BRDF is black and `strength` scales the emission texture.
+    /// Emitting triangles: `strength` scales the emission texture; their BRDF is black, but
+    /// for the ground truth in Mitsuba (`Scene::emitters_reflect`).
     pub emitter: bool,
     /// The largest radiance component over the group's triangles (1 for reflecting groups).
     pub strength: f32,
@@ -103,8 +126,12 @@ pub struct Scene<'a> {
     /// Group of each triangle.
     pub group_of: &'a [u32],
     pub emitters: &'a [Emission],
-    /// Named cameras (the val views).
+    /// Named cameras (one split's views).
     pub cameras: &'a [(String, Camera)],
+    /// Whether the emitting triangles also reflect with their baked material: true for the
+    /// ground truth (the reference scenes' area emitters reflect), false for a model (fipt's
+    /// refinement ends paths on emitters, and the field holds no material there).
+    pub emitters_reflect: bool,
     /// fipt's version, for the files' generator fields.
     pub generator: String,
 }
@@ -423,15 +450,17 @@ fn load(job: &ExportJob) -> Result<Loaded> {
     }
 }
 
-/// The val views' cameras of `scene`, named `val_NNN` (none where the folder has no val split).
-fn val_cameras(
+/// The cameras of `split` in `scene`, named `<split>_NNN` (none where the folder has no such
+/// split).
+fn split_cameras(
     scene: Option<&Path>,
+    split: CameraSplit,
     size: Option<(usize, usize)>,
 ) -> Result<Vec<(String, Camera)>> {
     let Some(scene) = scene else {
         return Ok(vec![]);
     };
-    let path = scene.join("val/transforms.json");
+    let path = scene.join(split.dir()).join("transforms.json");
     if !path.is_file() {
         return Ok(vec![]);
     }
@@ -439,7 +468,8 @@ fn val_cameras(
         Some(s) => s,
         None => {
             let img = scene
-                .join("val/Image")
+                .join(split.dir())
+                .join("Image")
                 .join(fipt_core::scene::dataset::image_file(0));
             let i = fipt_core::scene::Image::read_exr(&img)?;
             (i.width, i.height)
@@ -461,7 +491,7 @@ fn val_cameras(
     Ok(cams
         .into_iter()
         .enumerate()
-        .map(|(k, c)| (format!("val_{k:03}"), c))
+        .map(|(k, c)| (format!("{}_{k:03}", split.dir()), c))
         .collect())
 }
 
@@ -480,7 +510,7 @@ pub fn export(job: &ExportJob) -> Result<ExportReport> {
         bail!("--format: give at least one of glb, gltf, mitsuba, viewer");
     }
     let src = load(job)?;
-    let cameras = val_cameras(src.scene.as_deref(), src.image_size)?;
+    let cameras = split_cameras(src.scene.as_deref(), job.split, src.image_size)?;
     let n = src.mesh.num_triangles();
     let (groups, group_of) = group_triangles(n, src.meta.as_ref(), &src.emitters);
     let atlas = atlas::build(&src.mesh, &group_of, job.texels, PAD)?;
@@ -508,6 +538,7 @@ pub fn export(job: &ExportJob) -> Result<ExportReport> {
         group_of: &group_of,
         emitters: &src.emitters,
         cameras: &cameras,
+        emitters_reflect: matches!(job.source, Source::Truth),
         generator: format!("fipt {}", env!("CARGO_PKG_VERSION")),
     };
     std::fs::create_dir_all(&job.out)
