@@ -20,15 +20,15 @@
 
 use super::{Pngs, Scene};
 use anyhow::Result;
+use fipt_bake::emitters::EmitterSides;
+use fipt_core::io::write_bytes_atomic;
+use std::fmt::Write as _;
+use std::path::Path;
 
 /// The reflecting BSDF: `principled` on the baked textures, both sides.
 const PRINCIPLED: &str = "        <bsdf type=\"twosided\">\n            <bsdf type=\"principled\">\n                <ref name=\"base_color\" id=\"base_color\"/>\n                <ref name=\"roughness\" id=\"roughness\"/>\n                <ref name=\"metallic\" id=\"metallic\"/>\n                <float name=\"specular\" value=\"0.5\"/>\n            </bsdf>\n        </bsdf>\n";
 /// The BSDF of emitters that do not reflect.
 const BLACK: &str = "        <bsdf type=\"diffuse\">\n            <rgb name=\"reflectance\" value=\"0, 0, 0\"/>\n        </bsdf>\n";
-use fipt_bake::emitters::EmitterSides;
-use fipt_core::io::write_bytes_atomic;
-use std::fmt::Write as _;
-use std::path::Path;
 
 /// A PLY (binary little-endian) of the triangles `tris` (`Scene::indexed`): positions and
 /// optional per-vertex UVs; vertices offset by `shift` along each face's winding normal.
