@@ -8,6 +8,7 @@ pub mod camera;
 pub mod dataset;
 pub mod image;
 pub mod insert;
+pub mod jpeg;
 pub mod ldr;
 pub mod mesh;
 pub mod meta;

@@ -184,6 +184,13 @@ pub struct LdrSection {
     /// The emitter solve after round 0 reads L′ without the pixels on and within
     /// `refine.paths.cache_margin` of an emitter, as the refinement does.
     pub solve_without_emitters: bool,
+    /// JPEG photos: their code values reconstructed within the file's quantisation (the image
+    /// of least total variation whose DCT coefficients round to the stored ones;
+    /// `fipt_core::scene::jpeg`) before anything reads them (false: the decoder's codes;
+    /// `docs/departures/jpeg-reconstruct.md`).
+    pub jpeg_reconstruct: bool,
+    /// Projected gradient steps of that reconstruction.
+    pub jpeg_iterations: usize,
 }
 
 impl Default for LdrSection {
@@ -199,6 +206,8 @@ impl Default for LdrSection {
             solve_instruments: true,
             fill_clipped_surfaces: true,
             solve_without_emitters: true,
+            jpeg_reconstruct: true,
+            jpeg_iterations: 15,
         }
     }
 }

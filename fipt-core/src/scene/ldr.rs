@@ -7,10 +7,14 @@
 //! values, so that linearising a photo (L = g(I)/e) is a table lookup and f is its exact inverse.
 //! A code of 255 is clipped: the photo says only that e·L ≥ 1 on that channel.
 //!
+//! A JPEG's code values can be reconstructed within its quantisation (`super::jpeg`); the
+//! clipped test reads the decoder's codes.
+//!
 //! Owns: decoding LDR files with their checks, the response curve. Must not touch: how the
 //! response or the exposures are estimated (fipt-train's `ldr`), ray tracing, tensors.
 
 use super::Image;
+use super::jpeg::{JpegTables, Reconstruction, reconstruct};
 use crate::io::{FileError, Result, read_bytes};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -42,12 +46,37 @@ pub struct LdrFrame {
     /// Pixels whose clipped channels a run has filled with a solved radiance (a lamp's): the
     /// view's linear image holds that radiance there, no longer a lower bound. Empty: none.
     pub filled: Vec<bool>,
+    /// A JPEG's quantisation tables, where the file's markers give them.
+    pub jpeg: Option<JpegTables>,
+    /// The code values in [0, 1] that linearising and the response's estimates read, 3 per
+    /// pixel, where they are not `codes`/255: a JPEG reconstructed within its quantisation
+    /// (`reconstruct_jpeg`). Empty: `codes`/255.
+    pub values: Vec<f32>,
 }
 
 impl LdrFrame {
     /// Whether channel `c` of pixel `p` is clipped.
     pub fn clipped(&self, p: usize, c: usize) -> bool {
         self.codes[3 * p + c] >= self.clip_at
+    }
+
+    /// The code value in [0, 1] of channel `c` of pixel `p` (`values`, else `codes`/255).
+    pub fn value(&self, p: usize, c: usize) -> f64 {
+        match self.values.get(3 * p + c) {
+            Some(&v) => v as f64,
+            None => self.codes[3 * p + c] as f64 / 255.0,
+        }
+    }
+
+    /// Replaces the values of a JPEG's channels with its reconstruction within its
+    /// quantisation (`super::jpeg::reconstruct`); a PNG, or a JPEG whose tables were not read,
+    /// keeps its codes. Returns whether it did.
+    pub fn reconstruct_jpeg(&mut self, how: &Reconstruction) -> bool {
+        let Some(t) = &self.jpeg else {
+            return false;
+        };
+        self.values = reconstruct(&self.codes, self.width, self.height, t, how);
+        true
     }
 
     /// Whether the clipped channels of pixel `p` hold a solved radiance (`filled`).
@@ -75,10 +104,17 @@ impl LdrFrame {
         let data = self
             .codes
             .chunks_exact(3)
-            .flat_map(|px| {
+            .enumerate()
+            .flat_map(|(p, px)| {
                 [0, 1, 2].map(|c| {
                     let code = px[c] as usize;
-                    let g = if code >= clip { 1.0 } else { lut[c][code] };
+                    let g = if code >= clip {
+                        1.0
+                    } else if let Some(&v) = self.values.get(3 * p + c) {
+                        response.inverse(c, v as f64) as f32
+                    } else {
+                        lut[c][code]
+                    };
                     g * s
                 })
             })
@@ -135,6 +171,12 @@ pub fn read_ldr(path: &Path) -> Result<LdrFrame> {
         exposure: None,
         clip_at: if is_jpeg { CLIPPED_JPEG } else { CLIPPED },
         filled: Vec::new(),
+        jpeg: if is_jpeg {
+            JpegTables::read(&bytes)
+        } else {
+            None
+        },
+        values: Vec::new(),
     };
     if frame.codes.iter().all(|&c| c >= frame.clip_at) {
         return Err(FileError::new(

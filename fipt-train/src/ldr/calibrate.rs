@@ -81,7 +81,7 @@ fn point_codes(ds: &Dataset, accel: &Accel, split: &Split) -> PointCodes {
                     ((t as u64) << 24) ^ ((q.x as u64) << 16) ^ ((q.y as u64) << 8) ^ q.z as u64;
                 let e = sum.entry(key).or_default();
                 for c in 0..3 {
-                    e.0[c] += f.codes[3 * p + c] as f64 / 255.0;
+                    e.0[c] += f.value(p, c);
                 }
                 e.1 += 1;
             }

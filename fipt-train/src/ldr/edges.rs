@@ -139,7 +139,7 @@ pub fn edge_samples(
                 })
         })
         .collect();
-    let code = |p: usize, c: usize| frame.codes[3 * p + c] as f64 / 255.0;
+    let code = |p: usize, c: usize| frame.value(p, c);
     // The surfaces inside every pixel that is not pure: (plane, points) over an 8×8 grid.
     let inside: Vec<Option<Vec<Surface>>> = (0..w * h)
         .into_par_iter()

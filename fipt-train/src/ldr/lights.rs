@@ -261,7 +261,7 @@ pub fn solve_clipped(
             let f = train.views[k as usize].ldr.as_ref().expect("LDR views");
             let e = exposures[k as usize];
             SolvePixel {
-                code: [0, 1, 2].map(|c| f.codes[3 * p as usize + c] as f64 / 255.0),
+                code: [0, 1, 2].map(|c| f.value(p as usize, c)),
                 value: [0, 1, 2].map(|c| store.pixels.gt[3 * i + c] as f64 * e),
                 exposure: e,
                 part,

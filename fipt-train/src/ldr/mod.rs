@@ -2,6 +2,8 @@
 //! IRIS (`iris-reference.md`):
 //!
 //! - `twin`: the `ldr` command, which makes the LDR twin of an HDR scene;
+//! - `reconstruct_jpegs`: JPEG photos' code values reconstructed within their quantisation
+//!   (`fipt_core::scene::jpeg`) before anything reads them;
 //! - `calibrate`: the response and the per-frame exposures, and the photos linearised with
 //!   them before the bake;
 //! - `lights`: the HDR radiance of clipped emitters, solved from the unclipped pixels they
@@ -21,4 +23,26 @@ pub mod response;
 pub mod twin;
 
 pub use calibrate::{Calibration, ResponseChoice, calibrate};
+
+use fipt_core::scene::Dataset;
+use fipt_core::scene::jpeg::Reconstruction;
+use rayon::prelude::*;
+
+/// Reconstructs every JPEG photo of the train and val splits within its quantisation, with
+/// `iterations` projected steps (`ldr.jpeg_iterations`); returns how many it reconstructed.
+pub fn reconstruct_jpegs(ds: &mut Dataset, iterations: usize) -> usize {
+    let how = Reconstruction {
+        iterations,
+        ..Reconstruction::default()
+    };
+    let mut views: Vec<_> = ds.train.views.iter_mut().collect();
+    if let Some(v) = ds.val.as_mut() {
+        views.extend(v.views.iter_mut());
+    }
+    views
+        .into_par_iter()
+        .filter_map(|v| v.ldr.as_mut())
+        .map(|f| f.reconstruct_jpeg(&how) as usize)
+        .sum()
+}
 pub use twin::{TwinJob, TwinTruth, make_twin};

@@ -67,6 +67,9 @@ impl<'a> RunContext<'a> {
         let mut ds = Dataset::load(scene, &load_opts())?;
         let lock = crate::lock::DirLock::acquire(out)?;
         let accel = Accel::build(&ds.mesh);
+        if cfg.ldr.jpeg_reconstruct {
+            crate::ldr::reconstruct_jpegs(&mut ds, cfg.ldr.jpeg_iterations);
+        }
         let ldr = ds.is_ldr().then(|| {
             crate::ldr::calibrate(
                 &mut ds,
