@@ -186,7 +186,8 @@ pub struct LdrSection {
     pub solve_without_emitters: bool,
     /// JPEG photos: their code values reconstructed within the file's quantisation (the image
     /// of least total variation whose DCT coefficients round to the stored ones;
-    /// `fipt_core::scene::jpeg`) before anything reads them (false: the decoder's codes;
+    /// `fipt_core::scene::jpeg`) before anything reads them. False, the default: the decoder's
+    /// codes (of two held-out suite rooms it raises one's k_d and loses another's parts;
     /// `docs/departures/jpeg-reconstruct.md`).
     pub jpeg_reconstruct: bool,
     /// Projected gradient steps of that reconstruction.
@@ -206,7 +207,7 @@ impl Default for LdrSection {
             solve_instruments: true,
             fill_clipped_surfaces: true,
             solve_without_emitters: true,
-            jpeg_reconstruct: true,
+            jpeg_reconstruct: false,
             jpeg_iterations: 15,
         }
     }
