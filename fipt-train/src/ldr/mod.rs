@@ -23,6 +23,7 @@ pub mod response;
 pub mod twin;
 
 pub use calibrate::{Calibration, ResponseChoice, calibrate};
+pub use twin::{TwinJob, TwinTruth, make_twin};
 
 use fipt_core::scene::Dataset;
 use fipt_core::scene::jpeg::Reconstruction;
@@ -45,4 +46,3 @@ pub fn reconstruct_jpegs(ds: &mut Dataset, iterations: usize) -> usize {
         .map(|f| f.reconstruct_jpeg(&how) as usize)
         .sum()
 }
-pub use twin::{TwinJob, TwinTruth, make_twin};
