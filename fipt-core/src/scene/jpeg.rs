@@ -166,6 +166,11 @@ fn dct8(m: &[[f32; 8]; 8], b: &[f32; 64], inverse: bool) -> [f32; 64] {
     o
 }
 
+/// The whole block (`bx`, `by`) of a plane `w` wide, level-shifted by −128 as JPEG codes it.
+fn block(x: &[f32], w: usize, bx: usize, by: usize) -> [f32; 64] {
+    std::array::from_fn(|i| x[(by * 8 + i / 8) * w + bx * 8 + i % 8] - 128.0)
+}
+
 /// JFIF's RGB → YCbCr (ITU T.871, §7), in code units.
 fn to_ycc([r, g, b]: [f32; 3]) -> [f32; 3] {
     [
@@ -244,15 +249,6 @@ pub fn reconstruct(
         .collect();
     let m = dct_matrix();
     let (bw, bh) = (w / 8, h / 8);
-    let gather = |x: &[f32], bx: usize, by: usize| {
-        let mut b = [0f32; 64];
-        for r in 0..8 {
-            for c in 0..8 {
-                b[r * 8 + c] = x[(by * 8 + r) * w + bx * 8 + c] - 128.0;
-            }
-        }
-        b
-    };
     let active = if tables.quant.len() == 3 && tables.full_chroma {
         3
     } else {
@@ -265,7 +261,7 @@ pub fn reconstruct(
             let (mut lo, mut hi) = (Vec::new(), Vec::new());
             for by in 0..bh {
                 for bx in 0..bw {
-                    let coef = dct8(&m, &gather(&decoded, bx, by), false);
+                    let coef = dct8(&m, &block(&decoded, w, bx, by), false);
                     let (mut l, mut u) = ([0f32; 64], [0f32; 64]);
                     for j in 0..64 {
                         let qj = q[j] as f32;
@@ -289,7 +285,7 @@ pub fn reconstruct(
             for by in 0..bh {
                 for bx in 0..bw {
                     let bi = by * bw + bx;
-                    let mut coef = dct8(&m, &gather(&z, bx, by), false);
+                    let mut coef = dct8(&m, &block(&z, w, bx, by), false);
                     for (j, v) in coef.iter_mut().enumerate() {
                         *v = v.clamp(plane.lo[bi][j], plane.hi[bi][j]);
                     }
@@ -373,60 +369,45 @@ mod tests {
         10.0 * (255.0f64 * 255.0 / mse).log10()
     }
 
-    /// Mean distance of the Y blocks' DCT coefficients larger than 2 from the nearest multiple
-    /// of their quantisation step, in steps (uniform: 0.25). `rgb`: code units.
-    fn mean_offset(rgb: &[f32], w: usize, h: usize, q: &[u16; 64]) -> f64 {
+    /// The DCT coefficients of every whole Y block of an RGB image in code units.
+    fn y_coefficients(rgb: &[f32], w: usize, h: usize) -> Vec<[f32; 64]> {
         let m = dct_matrix();
         let y: Vec<f32> = rgb
             .chunks_exact(3)
             .map(|p| to_ycc([p[0], p[1], p[2]])[0])
             .collect();
-        let (mut sum, mut n) = (0.0, 0);
-        for by in 0..h / 8 {
-            for bx in 0..w / 8 {
-                let mut b = [0f32; 64];
-                for r in 0..8 {
-                    for c in 0..8 {
-                        b[r * 8 + c] = y[(by * 8 + r) * w + bx * 8 + c] - 128.0;
-                    }
-                }
-                let coef = dct8(&m, &b, false);
-                for j in (0..64).filter(|&j| coef[j].abs() > 2.0) {
-                    let t = coef[j] as f64 / q[j] as f64;
-                    sum += (t - t.round()).abs();
-                    n += 1;
-                }
-            }
-        }
-        sum / n as f64
+        (0..h / 8)
+            .flat_map(|by| (0..w / 8).map(move |bx| (bx, by)))
+            .map(|(bx, by)| dct8(&m, &block(&y, w, bx, by), false))
+            .collect()
+    }
+
+    /// Mean distance of the Y blocks' DCT coefficients larger than 2 from the nearest multiple
+    /// of their quantisation step, in steps (uniform: 0.25). `rgb`: code units.
+    fn mean_offset(rgb: &[f32], w: usize, h: usize, q: &[u16; 64]) -> f64 {
+        let t: Vec<f64> = y_coefficients(rgb, w, h)
+            .iter()
+            .flat_map(|c| {
+                (0..64)
+                    .filter(|&j| c[j].abs() > 2.0)
+                    .map(|j| c[j] as f64 / q[j] as f64)
+            })
+            .collect();
+        t.iter().map(|t| (t - t.round()).abs()).sum::<f64>() / t.len() as f64
     }
 
     /// The share of Y coefficients of `a` (code units) within their quantisation interval
     /// about those of `b` (the decoder's), 0.05 of a step allowed past its ends.
     fn same_indices(a: &[f32], b: &[f32], w: usize, h: usize, q: &[u16; 64]) -> f64 {
-        let m = dct_matrix();
-        let coefs = |rgb: &[f32]| {
-            let y: Vec<f32> = rgb
-                .chunks_exact(3)
-                .map(|p| to_ycc([p[0], p[1], p[2]])[0])
-                .collect();
-            let mut out = Vec::new();
-            for by in 0..h / 8 {
-                for bx in 0..w / 8 {
-                    let b: [f32; 64] =
-                        std::array::from_fn(|i| y[(by * 8 + i / 8) * w + bx * 8 + i % 8] - 128.0);
-                    let c = dct8(&m, &b, false);
-                    out.extend((0..64).map(|j| c[j] / q[j] as f32));
-                }
-            }
-            out
-        };
-        let (ka, kb) = (coefs(a), coefs(b));
-        ka.iter()
-            .zip(&kb)
-            .filter(|(x, y)| (*x - y.round()).abs() <= 0.55)
-            .count() as f64
-            / ka.len() as f64
+        let (ca, cb) = (y_coefficients(a, w, h), y_coefficients(b, w, h));
+        let pairs = ca
+            .iter()
+            .zip(&cb)
+            .flat_map(|(x, y)| (0..64).map(move |j| (x[j] / q[j] as f32, y[j] / q[j] as f32)));
+        let (inside, n) = pairs.fold((0usize, 0usize), |(k, n), (x, y)| {
+            (k + ((x - y.round()).abs() <= 0.55) as usize, n + 1)
+        });
+        inside as f64 / n as f64
     }
 
     #[test]
