@@ -259,6 +259,7 @@ pub const FIELDS: &[Field] = &[
     f(C, "ldr.solve_pixels", int(1.0, 1e7), "pixels"),
     f(C, "ldr.light_samples", int(1.0, 1e5), "rays per pixel and lamp"),
     f(C, "ldr.edge_tolerance", UNIT, "RMS over the response curves"),
+    f(C, "ldr.jpeg_iterations", int(0.0, 1e4), "projected gradient steps"),
     f(C, "refine.rounds", int(0.0, 16.0), "rounds"),
     f(C, "refine.lambda_d", WEIGHT, "a loss weight (or null)"),
     f(C, "refine.lambda_d_warmup", UNIT, "a share of the steps (or null)"),
